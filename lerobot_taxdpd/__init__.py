@@ -1,0 +1,24 @@
+"""TAX-DPD goal prediction for LeRobot: Dense GMM + disentangled point-cloud diffusion.
+
+Importing the package registers the `taxdpd` policy type (config and processor steps) with LeRobot.
+Modeling classes load lazily, so `import lerobot_taxdpd` stays cheap for LeRobot's plugin discovery.
+"""
+
+from importlib import import_module
+
+from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
+
+__version__ = "0.1.0"
+
+_LAZY = {
+    "TaxDPDPolicy": "lerobot_taxdpd.modeling_taxdpd",
+    "make_taxdpd_pre_post_processors": "lerobot_taxdpd.processor_taxdpd",
+}
+
+__all__ = ["TaxDPDConfig", *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'lerobot_taxdpd' has no attribute {name!r}")

@@ -1,0 +1,42 @@
+"""Test-wide set-up: no network, and a private Hugging Face cache per test session.
+
+The environment is set at import time, before LeRobot reads HF_LEROBOT_HOME into module constants, and
+is inherited by the CLI subprocesses the tests start (`lerobot-train`, converters, benchmarks).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_HF_HOME = Path(tempfile.mkdtemp(prefix="taxdpd-tests-hf-"))
+os.environ["HF_HOME"] = str(_HF_HOME)
+os.environ["HF_LEROBOT_HOME"] = str(_HF_HOME / "lerobot")
+os.environ["HF_HUB_OFFLINE"] = "1"
+os.environ["WANDB_MODE"] = "disabled"
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+BIN = Path(sys.executable).parent
+
+
+def run_cli(name: str, *args: str, timeout: float = 600, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run a console script of this environment (e.g. `lerobot-train`) and fail with its output on error."""
+    command = [str(BIN / name), *map(str, args)]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=timeout, cwd=cwd)
+    if result.returncode != 0:
+        pytest.fail(
+            f"{' '.join(command)} exited {result.returncode}\n--- stdout\n{result.stdout[-4000:]}"
+            f"\n--- stderr\n{result.stderr[-8000:]}"
+        )
+    return result
+
+
+@pytest.fixture
+def hf_home() -> Path:
+    """The session's private, offline Hugging Face home."""
+    return _HF_HOME
