@@ -7,15 +7,15 @@ Modeling classes load lazily, so `import lerobot_taxdpd` stays cheap for LeRobot
 from importlib import import_module
 
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.processor_taxdpd import make_taxdpd_pre_post_processors
 
 __version__ = "0.1.0"
 
 _LAZY = {
     "TaxDPDPolicy": "lerobot_taxdpd.modeling_taxdpd",
-    "make_taxdpd_pre_post_processors": "lerobot_taxdpd.processor_taxdpd",
 }
 
-__all__ = ["TaxDPDConfig", *_LAZY]
+__all__ = ["TaxDPDConfig", "make_taxdpd_pre_post_processors", *_LAZY]
 
 
 def __getattr__(name: str):
