@@ -6,9 +6,10 @@ from dataclasses import dataclass
 
 from lerobot.configs.types import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
+from lerobot.utils.constants import OBS_ENV_STATE
 from torch import Tensor
 
-from lerobot_taxdpd.schema import POINT_CLOUD_PREFIX
+from lerobot_taxdpd.schema import OBJECT_KEY, POINT_CLOUD_PREFIX, SCENE_KEY
 
 
 @dataclass
@@ -25,6 +26,37 @@ class AddPointCloudBatchDimensionStep(ObservationProcessorStep):
             if key.startswith(POINT_CLOUD_PREFIX) and isinstance(value, Tensor) and value.dim() == 2:
                 observation[key] = value.unsqueeze(0)
         return observation
+
+    def transform_features(
+        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
+    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        return features
+
+
+@dataclass
+@ProcessorStepRegistry.register(name="taxdpd_unpack_environment_state")
+class UnpackEnvironmentPointCloudsStep(ObservationProcessorStep):
+    """Split `observation.environment_state` = [object rows; scene rows] into the two cloud keys.
+
+    LeRobot 0.4.4's env loop forwards only a few observation keys, so the package's simulation envs send
+    both clouds packed in `environment_state`, object first. Observations that already carry the cloud
+    keys (datasets, direct calls) pass through untouched.
+    """
+
+    num_object_points: int = 0
+
+    def observation(self, observation: dict[str, Tensor]) -> dict[str, Tensor]:
+        packed = observation.get(OBS_ENV_STATE)
+        if packed is None or OBJECT_KEY in observation or self.num_object_points <= 0:
+            return observation
+        observation = dict(observation)
+        observation.pop(OBS_ENV_STATE)
+        observation[OBJECT_KEY] = packed[..., : self.num_object_points, :]
+        observation[SCENE_KEY] = packed[..., self.num_object_points :, :]
+        return observation
+
+    def get_config(self) -> dict[str, int]:
+        return {"num_object_points": self.num_object_points}
 
     def transform_features(
         self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]

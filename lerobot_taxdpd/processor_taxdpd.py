@@ -23,7 +23,8 @@ from lerobot.processor.converters import policy_action_to_transition, transition
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.point_cloud_steps import AddPointCloudBatchDimensionStep
+from lerobot_taxdpd.point_cloud_steps import AddPointCloudBatchDimensionStep, UnpackEnvironmentPointCloudsStep
+from lerobot_taxdpd.schema import OBJECT_KEY
 
 
 def make_taxdpd_pre_post_processors(
@@ -34,9 +35,12 @@ def make_taxdpd_pre_post_processors(
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
     features = {**config.input_features, **config.output_features}
+    object_feature = config.input_features.get(OBJECT_KEY)
+    num_object_points = object_feature.shape[0] if object_feature is not None else 0
     preprocessor = PolicyProcessorPipeline[dict[str, Any], dict[str, Any]](
         steps=[
             RenameObservationsProcessorStep(rename_map={}),
+            UnpackEnvironmentPointCloudsStep(num_object_points=num_object_points),
             AddBatchDimensionProcessorStep(),
             AddPointCloudBatchDimensionStep(),
             DeviceProcessorStep(device=config.device),
