@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 
@@ -133,6 +133,20 @@ class TaxDPDConfig(PreTrainedConfig):
                     f"normalization_mapping[{mode_name!r}] must be IDENTITY: taxdpd scales point clouds "
                     "isotropically itself (per-axis normalisation would distort the geometry)"
                 )
+
+    @classmethod
+    def for_point_clouds(cls, num_object_points: int, num_scene_points: int, **overrides) -> TaxDPDConfig:
+        """A config with the dataset schema's features, for building a policy outside `lerobot-train`."""
+        return cls(
+            input_features={
+                OBJECT_KEY: PolicyFeature(FeatureType.STATE, (num_object_points, 3)),
+                SCENE_KEY: PolicyFeature(FeatureType.STATE, (num_scene_points, 3)),
+            },
+            output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (num_object_points, 3))},
+            num_object_points=num_object_points,
+            num_scene_points=num_scene_points,
+            **overrides,
+        )
 
     # ---- LeRobot hooks
     def get_optimizer_preset(self) -> AdamWConfig:

@@ -80,18 +80,26 @@ class DatasetWriter:
 
     # ------------------------------------------------------------------------------------ lifecycle
     def __enter__(self) -> DatasetWriter:
+        import datasets
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        # One progress bar per saved episode drowns the caller's own progress bar.
+        datasets.disable_progress_bars()
 
         self.root.parent.mkdir(parents=True, exist_ok=True)
         self._partial = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.partial-", dir=self.root.parent))
-        self._dataset = LeRobotDataset.create(
-            repo_id=self.repo_id,
-            fps=self.fps,
-            features=self.features,
-            root=self._partial / "dataset",
-            robot_type=self.robot_type,
-            use_videos=False,
-        )
+        try:
+            self._dataset = LeRobotDataset.create(
+                repo_id=self.repo_id,
+                fps=self.fps,
+                features=self.features,
+                root=self._partial / "dataset",
+                robot_type=self.robot_type,
+                use_videos=False,
+            )
+        except BaseException:  # __exit__ does not run when __enter__ fails: remove the partial folder here
+            shutil.rmtree(self._partial, ignore_errors=True)
+            raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:

@@ -1,0 +1,1 @@
+"""Networks of the TAX-DPD goal predictor (plain PyTorch, no compiled extensions)."""

@@ -1,0 +1,43 @@
+"""Report metrics on clouds with known answers."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lerobot_taxdpd import metrics
+from lerobot_taxdpd.geometry import make_transform, rotation_about_z, transform_points
+
+
+def test_translation_rotation_and_rmse_of_a_known_motion():
+    cloud = np.random.default_rng(0).normal(size=(200, 3))
+    motion = make_transform(rotation_about_z(torch.tensor(math.radians(7.0), dtype=torch.float64)), torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64))
+    moved = transform_points(motion.numpy(), cloud)
+    assert metrics.rotation_error_deg(moved, cloud) == pytest.approx(7.0, abs=1e-6)
+    shifted = cloud + np.array([0.003, 0.004, 0.0])
+    assert metrics.translation_error(shifted, cloud) == pytest.approx(0.005)
+    assert metrics.point_rmse(shifted, cloud) == pytest.approx(0.005)
+
+
+def test_winner_take_all_picks_the_best_sample():
+    target = np.zeros((1, 10, 3))
+    samples = np.stack([np.full((10, 3), v) for v in (0.3, 0.01, -0.2)])[None]
+    assert metrics.winner_take_all_rmse(samples, target)[0] == pytest.approx(0.01 * math.sqrt(3))
+
+
+def test_coverage_and_precision_of_multimodal_samples():
+    goals = np.stack([np.zeros((5, 3)), np.ones((5, 3))])  # two valid goals
+    samples = np.stack([np.zeros((5, 3)), np.zeros((5, 3)) + 0.001, np.full((5, 3), 5.0)])
+    result = metrics.coverage_precision(samples, goals, threshold=0.01)
+    assert result["coverage"] == 0.5  # the second goal is never reached
+    assert result["precision"] == pytest.approx(2 / 3)  # the far sample matches no goal
+
+
+def test_wilson_interval_is_sane_at_the_edges():
+    low, high = metrics.wilson_interval(100, 100)
+    assert high == pytest.approx(1.0) and 0.95 < low < 0.97
+    low, high = metrics.wilson_interval(0, 20)
+    assert low == 0.0 and 0.15 < high < 0.18
+    summary = metrics.success_summary(78, 100)
+    assert summary["ci95_low"] < 0.78 < summary["ci95_high"]

@@ -1,0 +1,211 @@
+"""The `taxdpd` policy's public API, inputs checks, saving/loading and processors (untrained, tiny model)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.processor import PolicyProcessorPipeline
+
+from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
+from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.validation import PointCloudError
+
+N_O, N_S = 32, 64
+
+
+def tiny_policy(**overrides) -> TaxDPDPolicy:
+    torch.manual_seed(0)
+    config = TaxDPDConfig.for_point_clouds(
+        N_O, N_S, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, num_inference_steps=2, device="cpu", **overrides
+    )
+    return TaxDPDPolicy(config).eval()
+
+
+def clouds(batch: int = 2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(batch, N_O, 3, generator=g) * 0.1, torch.rand(batch, N_S, 3, generator=g)
+
+
+def test_public_api_shapes_and_frames():
+    policy = tiny_policy()
+    obj, scene = clouds()
+    goals = policy.sample_goals(obj, scene, num_samples=3)
+    assert goals.shape == (2, 3, N_O, 3) and goals.dtype == torch.float32
+    poses = policy.predict_poses(obj, scene, num_samples=2)
+    assert poses.shape == (2, 2, 4, 4)
+    rotations = poses[..., :3, :3].double()
+    assert torch.allclose(rotations @ rotations.transpose(-1, -2), torch.eye(3, dtype=torch.float64), atol=1e-5)
+    weights, means = policy.placement_distribution(obj, scene)
+    assert weights.shape == (2, N_S) and means.shape == (2, N_S, 3)
+    assert torch.allclose(weights.sum(-1), torch.ones(2), atol=1e-5)
+    # Means live in the caller's frame: an untrained GMM puts them on (or very near) the scene points.
+    assert (means - scene).norm(dim=-1).median() < 0.5
+
+
+def test_sampling_is_reproducible_with_a_generator_and_translation_equivariant_in_frame():
+    policy = tiny_policy()
+    obj, scene = clouds()
+    first = policy.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(3))
+    second = policy.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(3))
+    assert torch.equal(first, second)
+    shift = torch.tensor([10.0, -4.0, 2.0])
+    moved = policy.sample_goals(obj + shift, scene + shift, 2, generator=torch.Generator().manual_seed(3))
+    assert torch.allclose(moved - shift, first, atol=1e-3)  # works in the scene's own frame
+
+
+@pytest.mark.parametrize(
+    ("obj", "scene", "message"),
+    [
+        (torch.rand(N_O, 3), torch.rand(1, N_S, 3), "object_points: expected a batch"),
+        (torch.rand(1, N_O, 3), torch.rand(2, N_S, 3), "batch sizes 1 and 2 differ"),
+        (torch.full((1, N_O, 3), float("nan")), torch.rand(1, N_S, 3), "object_points: contains"),
+        (torch.rand(1, N_O, 3), torch.rand(1, N_S, 3) * float("inf"), "scene_points: contains"),
+        (torch.rand(1, 0, 3), torch.rand(1, N_S, 3), "object_points: is empty"),
+        (torch.rand(1, 2, 3), torch.rand(1, N_S, 3), "object_points: has 2 points"),
+        (torch.rand(1, N_O, 2), torch.rand(1, N_S, 3), "object_points: expected shape"),
+        (torch.rand(1, 1, N_O, 3), torch.rand(1, N_S, 3), r"object_points: expected shape \(B, N, 3\)"),
+    ],
+)
+def test_bad_input_names_the_argument(obj, scene, message):
+    with pytest.raises(PointCloudError, match=message):
+        tiny_policy().sample_goals(obj, scene, 1)
+
+
+def test_training_batch_with_mismatched_goal_is_rejected():
+    policy = tiny_policy().train()
+    obj, scene = clouds()
+    with pytest.raises(PointCloudError, match="observation.pointcloud.object and action: shapes"):
+        policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj[:, :-1]})
+    with pytest.raises(PointCloudError, match="action: missing"):
+        policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene})
+
+
+def test_loss_reports_each_part_and_reaches_every_parameter():
+    policy = tiny_policy().train()
+    obj, scene = clouds(4)
+    loss, parts = policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.2})
+    assert set(parts) == {"loss_gmm", "loss_local", "loss_frame", "loss_shape"}
+    loss.backward()
+    assert all(p.grad is not None for p in policy.parameters())
+
+
+def test_point_clouds_are_never_normalised_per_axis():
+    with pytest.raises(ValueError, match="must be IDENTITY"):
+        TaxDPDConfig(normalization_mapping={"STATE": "MEAN_STD", "ACTION": "IDENTITY"})
+
+
+def test_processor_batches_a_single_sample_and_unpacks_env_clouds():
+    policy = tiny_policy()
+    preprocessor, postprocessor = make_taxdpd_pre_post_processors(policy.config)
+    obj, scene = clouds(1)
+    single = preprocessor({OBJECT_KEY: obj[0], SCENE_KEY: scene[0]})
+    assert single[OBJECT_KEY].shape == (1, N_O, 3)
+    goal = postprocessor(policy.select_action(single))
+    assert goal.shape == (1, N_O, 3)
+    packed = preprocessor({"observation.environment_state": torch.cat([obj[0], scene[0]])})
+    assert torch.equal(packed[OBJECT_KEY], obj) and torch.equal(packed[SCENE_KEY], scene)
+
+
+def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path):
+    policy = tiny_policy()
+    policy.metrics = {"success_rate": 0.93, "translation_error_mm": 1.25}
+    policy.save_pretrained(tmp_path)
+    loaded = TaxDPDPolicy.from_pretrained(tmp_path)
+    assert loaded.config.point_scale == 20.0 and loaded.metrics == policy.metrics
+    obj, scene = clouds()
+    expected = policy.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(loaded.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1)), expected)
+    card = (tmp_path / "README.md").read_text()
+    assert "| `use_gmm` | `True` |" in card and "| success_rate | 0.93 |" in card and "library_name: lerobot" in card
+    pushed_card = str(loaded.generate_model_card("me/slots", "taxdpd", None, ["extra"]))
+    assert "datasets:" in pushed_card and "me/slots" in pushed_card and "translation_error_mm" in pushed_card
+
+
+def _install_in_hub_cache(hf_home: Path, repo_id: str, files: Path, revision: str = "0" * 40) -> None:
+    """Lay files out exactly as huggingface_hub caches a downloaded model repo."""
+    repo_dir = hf_home / "hub" / f"models--{repo_id.replace('/', '--')}"
+    shutil.copytree(files, repo_dir / "snapshots" / revision)
+    (repo_dir / "refs").mkdir()
+    (repo_dir / "refs" / "main").write_text(revision)
+
+
+def test_hub_id_loads_offline_from_the_huggingface_cache(tmp_path, hf_home):
+    policy = tiny_policy()
+    policy.metrics = {"rmse_mm": 4.0}
+    policy.save_pretrained(tmp_path / "model")
+    _install_in_hub_cache(hf_home, "taxdpd-tests/tiny", tmp_path / "model")
+    config = PreTrainedConfig.from_pretrained("taxdpd-tests/tiny")
+    assert isinstance(config, TaxDPDConfig)
+    loaded = TaxDPDPolicy.from_pretrained("taxdpd-tests/tiny")
+    assert loaded.metrics == {"rmse_mm": 4.0}
+    for name, tensor in policy.state_dict().items():
+        assert torch.equal(tensor, loaded.state_dict()[name]), name
+    with pytest.raises(Exception, match="offline|cannot find|not found|couldn't|Cannot find"):
+        TaxDPDPolicy.from_pretrained("taxdpd-tests/not-cached")
+
+
+def test_saved_processors_accept_lerobots_override_keys(tmp_path):
+    policy = tiny_policy()
+    preprocessor, postprocessor = make_taxdpd_pre_post_processors(policy.config)
+    preprocessor.save_pretrained(tmp_path)
+    postprocessor.save_pretrained(tmp_path)
+    overrides = {
+        "device_processor": {"device": "cpu"},
+        "rename_observations_processor": {"rename_map": {}},
+        "normalizer_processor": {"stats": None},
+    }
+    reloaded = PolicyProcessorPipeline.from_pretrained(tmp_path, config_filename="policy_preprocessor.json", overrides=overrides)
+    PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_postprocessor.json", overrides={"unnormalizer_processor": {"stats": None}}
+    )
+    obj, scene = clouds(1)
+    assert reloaded({OBJECT_KEY: obj[0], SCENE_KEY: scene[0]})[OBJECT_KEY].shape == (1, N_O, 3)
+    saved = json.loads((tmp_path / "policy_preprocessor.json").read_text())
+    assert "taxdpd_point_cloud_batch" in [step.get("registry_name") for step in saved["steps"]]
+
+
+@pytest.mark.parametrize(
+    "switches",
+    [
+        {"disentangled": False},
+        {"encoder": "mlp"},
+        {"use_gmm": False},
+        {"use_reconstruction_embedding": False},
+        {"use_rotation_noise": False},
+        {"use_deformation_embedding": False},
+        {"local_diffusion": "se3"},
+        {"use_gmm": False, "disentangled": False, "use_reconstruction_embedding": False, "use_deformation_embedding": False},
+    ],
+)
+def test_every_ablation_trains_and_samples(switches):
+    policy = tiny_policy(**switches).train()
+    obj, scene = clouds(3)
+    loss, _ = policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.3})
+    loss.backward()
+    assert all(p.grad is not None for p in policy.parameters())  # DDP-safe: no parameter sits idle
+    goals = policy.eval().sample_goals(obj, scene, 2)
+    assert goals.shape == (3, 2, N_O, 3) and bool(torch.isfinite(goals).all())
+    if not switches.get("use_gmm", True):
+        with pytest.raises(RuntimeError, match="without the Dense GMM"):
+            policy.placement_distribution(obj, scene)
+
+
+def test_se3_variant_outputs_rigid_goals():
+    policy = tiny_policy(local_diffusion="se3")
+    obj, scene = clouds(2)
+    goals = policy.sample_goals(obj, scene, 2)
+    source = obj.unsqueeze(1).double()
+    distances = lambda x: torch.cdist(x, x)  # noqa: E731
+    assert torch.allclose(distances(goals.double()), distances(source.expand_as(goals)), atol=1e-4)
+
+
+def test_numpy_inputs_are_accepted():
+    obj, scene = clouds(1)
+    goals = tiny_policy().sample_goals(obj.numpy().astype(np.float64), scene.numpy(), 1)
+    assert isinstance(goals, torch.Tensor) and goals.shape == (1, 1, N_O, 3)
