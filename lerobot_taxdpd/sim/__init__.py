@@ -1,0 +1,1 @@
+"""Procedural pybullet placement benchmarks: tasks, scripted experts, dataset generation and evaluation."""

@@ -1,0 +1,43 @@
+"""PNG of one evaluation trial: hangers, the cloth at the start, the valid goals and the predicted goal."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+
+def plot_trial(
+    path: Path,
+    hangers: np.ndarray,
+    cloth: np.ndarray,
+    valid_goals: Sequence[np.ndarray],
+    predicted_goal: np.ndarray | None,
+    title: str,
+) -> Path:
+    """Write a 3-D scatter plot; clouds are (N, 3) in metres."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure = plt.figure(figsize=(7, 6))
+    axes = figure.add_subplot(projection="3d")
+    axes.scatter(*hangers.T, s=2, c="0.4", label="hangers")
+    axes.scatter(*cloth.T, s=2, c="tab:blue", label="cloth (start)")
+    for i, goal in enumerate(valid_goals):
+        axes.scatter(*goal.T, s=1, c="tab:green", alpha=0.25, label="valid goals" if i == 0 else None)
+    if predicted_goal is not None:
+        axes.scatter(*predicted_goal.T, s=3, c="tab:red", label="predicted goal")
+    everything = np.concatenate([hangers, cloth, *valid_goals, *([predicted_goal] if predicted_goal is not None else [])])
+    centre, half = everything.mean(axis=0), 0.5 * np.ptp(everything, axis=0).max()
+    axes.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half))
+    axes.set(zlim=(max(0.0, centre[2] - half), centre[2] + half), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
+    axes.set_title(title, fontsize=9)
+    axes.legend(loc="upper left", fontsize=7, markerscale=4)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path

@@ -1,0 +1,89 @@
+"""Run one `cloth_hang` episode with any controller, and find the valid goals of a scene.
+
+The goal of a demonstration is where the cloth ends up: its settled shape after the expert has hung it
+by hole h on hanger j and let go. The full set of valid goals of a scene is the expert's successful
+result for every (hole, hanger) pair, each simulated from the same start.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
+from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
+from lerobot_taxdpd.sim.cloth.scene import SPLITS, ClothScene
+
+Controller = Callable[[dict[str, np.ndarray]], np.ndarray]
+
+
+@dataclass
+class Episode:
+    scene: ClothScene
+    success: bool
+    success_matrix: np.ndarray  # (holes, hangers)
+    start_vertices: np.ndarray  # cloth mesh at the first observation
+    final_vertices: np.ndarray  # cloth mesh after release and settling
+    seconds: float
+    observations: list[dict[str, np.ndarray]] = field(default_factory=list)  # o_t, before action t
+    actions: list[np.ndarray] = field(default_factory=list)  # the deltas the grippers executed
+
+
+def rollout(
+    env: ClothHangEnv, scene: ClothScene, make_controller: Callable[[ClothHangEnv], Controller], record: bool = False
+) -> Episode:
+    """Reset to `scene`, act until the env releases the cloth, return what happened."""
+    started = time.perf_counter()
+    observation, _ = env.reset(options={"scene": scene})
+    start_vertices = env.cloth_vertices()
+    controller = make_controller(env)
+    observations, actions = [], []
+    while True:
+        action = controller(observation)
+        next_observation, _, terminated, _, info = env.step(action)
+        if record:
+            observations.append(observation)
+            actions.append(info["applied_action"])
+        observation = next_observation
+        if terminated:
+            break
+    return Episode(
+        scene=scene,
+        success=info["is_success"],
+        success_matrix=info["success_matrix"],
+        start_vertices=start_vertices,
+        final_vertices=env.cloth_vertices(),
+        seconds=time.perf_counter() - started,
+        observations=observations,
+        actions=actions,
+    )
+
+
+def expert(hole: int, hanger: int) -> Callable[[ClothHangEnv], Controller]:
+    """Controller factory of the scripted expert for one (hole, hanger)."""
+
+    def make(env: ClothHangEnv) -> Controller:
+        scripted = ScriptedExpert(env, hole, hanger)
+        return lambda observation: scripted.act()
+
+    return make
+
+
+def demo_target(scene: ClothScene) -> tuple[int, int]:
+    """The (hole, hanger) a demonstration of this scene aims at: uniform, fixed by the scene's seed."""
+    rng = np.random.default_rng([SPLITS.index(scene.split), scene.seed, 2])
+    return int(rng.integers(len(scene.holes))), int(rng.integers(len(scene.hangers)))
+
+
+def valid_goals(env: ClothHangEnv, scene: ClothScene) -> dict[tuple[int, int], np.ndarray]:
+    """Settled cloth vertices for every (hole, hanger) the expert hangs successfully from this start."""
+    goals = {}
+    for hole in range(len(scene.holes)):
+        for hanger in range(len(scene.hangers)):
+            episode = rollout(env, scene, expert(hole, hanger))
+            if episode.success_matrix[hole, hanger]:
+                goals[hole, hanger] = episode.final_vertices
+    return goals

@@ -1,0 +1,43 @@
+"""The scripted expert hangs the cloth on the hole and hanger it is asked for."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
+from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
+from lerobot_taxdpd.sim.cloth.rollout import expert, rollout
+from lerobot_taxdpd.sim.cloth.scene import sample_scene
+
+
+@pytest.fixture(scope="module")
+def env():
+    environment = ClothHangEnv(split="train")
+    yield environment
+    environment.close()
+
+
+@pytest.mark.parametrize(("split", "seed", "hole", "hanger"), [("train", 3, 1, 0), ("test", 4, 1, 1)])
+def test_expert_hangs_the_requested_hole_on_the_requested_hanger(env, split, seed, hole, hanger):
+    scene = sample_scene(split, seed)
+    assert len(scene.holes) == 2, "pick a two-hole scene so the target is not the only choice"
+    episode = rollout(env, scene, expert(hole, hanger), record=True)
+    assert episode.success
+    expected = np.zeros((2, 2), dtype=bool)
+    expected[hole, hanger] = True
+    np.testing.assert_array_equal(episode.success_matrix, expected)
+    assert len(episode.actions) == env.settings.max_episode_steps
+    # The settled cloth hangs from the chosen peg: its hole is near the peg, well below where it started.
+    centroid = episode.final_vertices[env.mesh.hole_loops[hole]].mean(axis=0)
+    peg = scene.hangers[hanger]
+    assert np.linalg.norm(centroid - peg.goal_point) < 1.0
+    assert episode.seconds < 20.0
+
+
+def test_expert_rejects_indices_outside_the_scene(env):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="hole"):
+        ScriptedExpert(env, hole=5, hanger=0)
+    with pytest.raises(ValueError, match="hanger"):
+        ScriptedExpert(env, hole=0, hanger=2)
