@@ -61,7 +61,9 @@ def farthest_point_indices(points: ArrayLike, num_samples: int, start_index: int
 
     Uses fpsample's bucketed KD-tree FPS, which is exact and far faster than a Python loop on the
     30-60k-point clouds of raw demos. Returns sorted-by-selection-order int64 indices, so the same
-    indices can be applied to a corresponding cloud (start and goal rows stay paired).
+    indices can be applied to a corresponding cloud (start and goal rows stay paired). fpsample (1.0.2)
+    does not start at `start_index` itself but at a point chosen deterministically from it: different
+    values still give different exact samplings, reproducibly.
     """
     import fpsample
 
@@ -179,6 +181,10 @@ def make_transform(rotation: Tensor, translation: Tensor) -> Tensor:
 
 def transform_points(transform: ArrayLike, points: ArrayLike):
     """Apply (..., 4, 4) transforms to (..., N, 3) points."""
+    if isinstance(transform, np.ndarray) and isinstance(points, np.ndarray):
+        # Plain numpy: torch's thread pool costs far more than this matmul on a busy CPU (converters).
+        t = np.asarray(transform, dtype=np.float64)
+        return np.asarray(points, dtype=np.float64) @ np.swapaxes(t[..., :3, :3], -1, -2) + t[..., None, :3, 3]
     t, was_numpy = _as_tensor(transform)
     p, _ = _as_tensor(points)
     out = p @ t[..., :3, :3].transpose(-1, -2) + t[..., None, :3, 3]
