@@ -1,0 +1,169 @@
+"""The part every converter shares: options, point sampling, the write loop and the end-of-run summary.
+
+A source module only lists its demos (`DemoRef`) and turns one of them into the frames of one episode; this
+module feeds them through the atomic `DatasetWriter` with a progress bar, skips bad demos when asked, and
+reports what happened.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from datasets_conv.raw_io import DemoError
+from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
+from lerobot_taxdpd.geometry import farthest_point_indices
+from lerobot_taxdpd.validation import PointCloudError
+
+SPLITS = ("train", "val", "test", "all")
+
+
+@dataclass(frozen=True)
+class DemoRef:
+    """One demo of a raw dataset: `source` is what errors and the summary call it."""
+
+    source: str
+    path: Path
+    key: str | None = None
+
+
+@dataclass
+class ConversionOptions:
+    """Choices shared by every source; `None` point counts mean the task's default from the paper."""
+
+    num_object_points: int | None = None
+    num_scene_points: int | None = None
+    frames_per_demo: int = 2
+    split: str = "all"
+    seed: int = 0
+    skip_invalid: bool = False
+    overwrite: bool = False
+    hub_license: str | None = None
+    task: str | None = None
+    command: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise ValueError(f"split: expected one of {SPLITS}, got {self.split!r}")
+        if self.frames_per_demo < 2:
+            raise ValueError(
+                f"frames_per_demo: LeRobot 0.4.4 needs at least 2 frames per episode, got {self.frames_per_demo}"
+            )
+        for name in ("num_object_points", "num_scene_points"):
+            value = getattr(self, name)
+            if value is not None and value < 3:
+                raise ValueError(f"{name}: need at least 3 points, got {value}")
+
+    def point_counts(self, default: tuple[int, int]) -> tuple[int, int]:
+        return (self.num_object_points or default[0], self.num_scene_points or default[1])
+
+
+@dataclass
+class ConversionSummary:
+    """What a run did, printed at the end and returned to Python callers."""
+
+    source: str
+    repo_id: str
+    output: Path
+    demos_read: int
+    episodes: int
+    frames: int
+    skipped: list[SkippedItem]
+    seconds: float
+    notes: list[str] = field(default_factory=list)
+
+    def __str__(self) -> str:
+        rate = self.demos_read / self.seconds if self.seconds > 0 else float("nan")
+        lines = [
+            f"{self.source} conversion finished",
+            f"  demos read : {self.demos_read}",
+            f"  converted  : {self.episodes} episodes, {self.frames} frames",
+            f"  skipped    : {len(self.skipped)}",
+        ]
+        lines += [f"    - {s.source}: {s.reason}" for s in self.skipped]
+        lines += [f"  note       : {note}" for note in self.notes]
+        lines += [
+            f"  output     : {self.output}  (repo id {self.repo_id})",
+            f"  time       : {self.seconds:.1f} s ({rate:.2f} demos/s)",
+        ]
+        return "\n".join(lines)
+
+
+def demo_rng(seed: int, source: str) -> np.random.Generator:
+    """A generator that depends only on the seed and the demo's name, not on which other demos are converted."""
+    return np.random.default_rng([seed, zlib.crc32(source.encode())])
+
+
+def sampling_indices(points: np.ndarray, num_points: int, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """`count` farthest-point samplings of one cloud, each seeded by a different random start index.
+
+    The same index array is applied to every cloud whose rows correspond (start and goal), so row i of
+    the sampled goal is still where row i of the sampled start must go.
+    """
+    n = points.shape[0]
+    starts = rng.choice(n, size=count, replace=count > n)
+    return [farthest_point_indices(points, num_points, start_index=int(s)) for s in starts]
+
+
+def write_dataset(
+    demos: Sequence[DemoRef],
+    episode: Callable[[DemoRef], tuple[list[dict], str]],
+    *,
+    source_name: str,
+    repo_id: str,
+    root: Path,
+    features: dict,
+    fps: int,
+    card: DatasetCardInfo,
+    options: ConversionOptions,
+    notes: Sequence[str] = (),
+) -> ConversionSummary:
+    """Convert every demo into one episode and publish the dataset atomically at `root`.
+
+    A bad demo stops the run (nothing is published) unless `options.skip_invalid`, in which case it is
+    listed in the summary and the dataset card.
+    """
+    if not demos:
+        raise DemoError(f"{source_name}: no demos to convert (check --raw-dir and --split)")
+    started = time.perf_counter()
+    with DatasetWriter(repo_id, root, features, fps=fps, card=card, overwrite=options.overwrite) as writer:
+        for demo in tqdm(demos, desc=f"{source_name} -> {root.name}", unit="demo", dynamic_ncols=True):
+            try:
+                frames, task = episode(demo)
+                writer.add_episode(frames, task=task)
+            except (DemoError, PointCloudError) as exc:
+                if not options.skip_invalid:
+                    raise
+                message = str(exc)
+                writer.skip(demo.source, message.removeprefix(f"{demo.source}: "))
+        if writer.num_episodes == 0:
+            reasons = "; ".join(f"{s.source}: {s.reason}" for s in writer.skipped[:3])
+            raise DemoError(f"every one of the {len(demos)} demos was invalid, nothing to write ({reasons})")
+    return ConversionSummary(
+        source=source_name,
+        repo_id=repo_id,
+        output=writer.root,
+        demos_read=len(demos),
+        episodes=writer.num_episodes,
+        frames=writer.num_frames,
+        skipped=list(writer.skipped),
+        seconds=time.perf_counter() - started,
+        notes=list(notes),
+    )
+
+
+def card_details(options: ConversionOptions, num_object_points: int, num_scene_points: int) -> dict[str, str]:
+    """Card rows every converter records: how the clouds were sampled and which demos were taken."""
+    return {
+        "split": options.split,
+        "sampling": (
+            f"farthest point sampling, {num_object_points} object / {num_scene_points} scene points; "
+            f"{options.frames_per_demo} samplings per demo seeded by random start indices (seed {options.seed})"
+        ),
+    }

@@ -1,0 +1,121 @@
+"""The `taxdpd-convert` / `python -m datasets_conv` CLI as a user runs it: help, summary, errors, Hub, interrupts.
+
+Entry points, help and interrupts run as subprocesses; the other cases call the same `main()` in-process,
+which spares each case the several seconds of importing LeRobot and torch again.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from conftest import BIN
+from convert_fixtures import leftovers, nist_demo, rpdiff_demo, save_nist_npz, save_rpdiff_demo
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from datasets_conv.__main__ import main
+from datasets_conv.rpdiff import RPDIFF_TASKS
+
+
+def convert(*args, module: bool = False) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "datasets_conv"] if module else [str(BIN / "taxdpd-convert")]
+    return subprocess.run([*command, *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+def _rpdiff_dir(tmp_path: Path, count: int) -> Path:
+    demo_dir = tmp_path / "mug_rack_easy_single" / "task_name_mug_on_rack"
+    rng = np.random.default_rng(0)
+    for i in range(count):
+        save_rpdiff_demo(demo_dir / f"demo_aug_{i}.npz", rpdiff_demo(rng, nested_pose=i % 2 == 1)[0])
+    return demo_dir
+
+
+def test_help_explains_layouts_and_the_pickle_risk():
+    top = convert("--help")
+    assert top.returncode == 0 and all(s in top.stdout for s in ("rpdiff", "dedo", "nist", "push", "HF_TOKEN"))
+    rpdiff = convert("rpdiff", "--help").stdout
+    assert "WARNING" in rpdiff and "execute code" in rpdiff and "split_info" in rpdiff
+    assert all(name in rpdiff for name in RPDIFF_TASKS)
+    assert "--kind" in convert("dedo", "--help").stdout
+    nist = convert("nist", "--help").stdout
+    assert "goal_tf" in nist and "--units" in nist and "--holdout-fraction" in nist
+
+
+def test_convert_prints_summary_and_lerobot_loads_the_result(tmp_path):
+    root = tmp_path / "out"
+    result = convert(
+        "rpdiff", "--raw-dir", _rpdiff_dir(tmp_path, 3), "--repo-id", "me/rpdiff_mug_easyrack", "--root", root,
+        "--frames-per-demo", "3", module=True,
+    )
+    assert result.returncode == 0, result.stderr
+    for line in ("demos read : 3", "converted  : 3 episodes, 9 frames", "skipped    : 0", f"output     : {root}"):
+        assert line in result.stdout
+    dataset = LeRobotDataset("me/rpdiff_mug_easyrack", root=root)
+    assert dataset.meta.total_episodes == 3 and list(dataset.meta.episodes["length"]) == [3, 3, 3]
+    assert "taxdpd-convert rpdiff --raw-dir" in (root / "README.md").read_text()
+
+
+def test_bad_demo_fails_cleanly_and_skip_invalid_lists_it(tmp_path, capsys):
+    demo_dir = _rpdiff_dir(tmp_path, 3)
+    (demo_dir / "demo_aug_1.npz").write_bytes((demo_dir / "demo_aug_1.npz").read_bytes()[:5000])
+    root = tmp_path / "out"
+    args = ["rpdiff", "--raw-dir", str(demo_dir), "--repo-id", "me/x", "--root", str(root)]
+
+    assert main(args) == 1
+    stderr = capsys.readouterr().err
+    assert "demo_aug_1.npz" in stderr and "--skip-invalid" in stderr
+    assert not root.exists() and leftovers(root) == []
+
+    assert main([*args, "--skip-invalid"]) == 0
+    stdout = capsys.readouterr().out
+    assert "skipped    : 1" in stdout and "demo_aug_1.npz: not a readable .npz file" in stdout
+    assert "Skipped inputs (1)" in (root / "README.md").read_text()
+
+    assert main(args) == 1 and "already exists" in capsys.readouterr().err
+    assert LeRobotDataset("me/x", root=root).meta.total_episodes == 2
+
+
+def test_push_offline_keeps_the_dataset_and_says_how_to_retry(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    for i in range(2):
+        initial, socket, goal_tf, _ = nist_demo(rng)
+        save_nist_npz(tmp_path / "nist" / "waterproof" / f"{i}.npz", initial, socket, goal_tf)
+    root = tmp_path / "out"
+    args = ["--raw-dir", str(tmp_path / "nist"), "--repo-id", "me/nist", "--root", str(root), "--license", "mit"]
+
+    assert main(["nist", *args, "--push", "--private"]) == 1
+    result = capsys.readouterr()
+    assert "converted  : 2 episodes" in result.out
+    assert "Offline" in result.err, "the upload must reach huggingface_hub, which refuses offline"
+    assert "huggingface-cli login" in result.err
+    assert f"taxdpd-convert push --root {root} --repo-id me/nist --private" in result.err
+    readme = (root / "README.md").read_text()
+    assert "license: mit" in readme and "- taxdpd" in readme and "- nist" in readme
+    assert LeRobotDataset("me/nist", root=root).meta.total_episodes == 2
+
+    assert main(["push", "--root", str(root), "--repo-id", "me/nist"]) == 1
+    assert "Offline" in capsys.readouterr().err
+
+
+def test_interrupt_leaves_the_previous_dataset_untouched(tmp_path):
+    """Ctrl-C while a new dataset is being written over an old one (--overwrite) leaves the old one as it was."""
+    root = tmp_path / "out"
+    small = _rpdiff_dir(tmp_path / "small", 2)
+    assert main(["rpdiff", "--raw-dir", str(small), "--repo-id", "me/x", "--root", str(root)]) == 0
+    before = {p.relative_to(root): p.stat().st_size for p in root.rglob("*")}
+    big = _rpdiff_dir(tmp_path / "big", 60)
+    command = [str(BIN / "taxdpd-convert"), "rpdiff", "--raw-dir", str(big), "--repo-id", "me/x", "--root", str(root)]
+    process = subprocess.Popen([*command, "--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not leftovers(root) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+
+    assert process.returncode == 130 and "interrupted" in stderr
+    assert {p.relative_to(root): p.stat().st_size for p in root.rglob("*")} == before
+    assert leftovers(root) == [] and LeRobotDataset("me/x", root=root).meta.total_episodes == 2
