@@ -117,7 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
                 help="--kind policy: mark every rollout's last step as a success (the zarr does not say)",
             )
         if name == "nist":
-            sub.add_argument("--units", choices=("auto", "m", "mm"), default="auto", help="source units (default: auto)")
+            sub.add_argument(
+                "--units", choices=("auto", "m", "mm"), default="auto", help="source units (default: auto)"
+            )
             sub.add_argument(
                 "--holdout-fraction", type=float, default=0.2, help="held-out share without train/test folders"
             )
