@@ -117,8 +117,9 @@ def detect_units(plug: np.ndarray, socket: np.ndarray) -> str:
     return "mm" if float(np.linalg.norm(both.max(0) - both.min(0))) > MILLIMETRE_EXTENT else "m"
 
 
-def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, int], units: str, detected: Counter):
-    """Samplings of one demo in metres; the goal is T* = inverse(goal_tf) applied to the sampled plug."""
+def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, int], units: str):
+    """Samplings of one demo in metres, its task and its source unit; the goal is T* = inverse(goal_tf)
+    applied to the sampled plug."""
     num_object, num_scene = counts
     (plug_field, socket_field, tf_field), (plug_raw, socket_raw, goal_tf) = read_demo(demo.path, demo.source)
     plug = as_cloud(plug_raw, demo.source, plug_field, min_points=num_object)
@@ -126,7 +127,6 @@ def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
     goal_tf = as_finite(goal_tf, demo.source, tf_field, (4, 4))
     check_rigid_transform(goal_tf, f"{demo.source}: field '{tf_field}'")
     unit = detect_units(plug, socket) if units == "auto" else units
-    detected[unit] += 1
     scale = UNIT_SCALES[unit]
     transform = np.linalg.inv(goal_tf)
     transform[:3, 3] *= scale
@@ -139,7 +139,7 @@ def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
         points = plug[obj_idx]
         goal = transform_points(transform, points)
         frames.append(placement_frame(points, socket[scene_idx], goal, transform, source=demo.source))
-    return frames, f"insert the {demo.key} connector into its socket"
+    return frames, f"insert the {demo.key} connector into its socket", unit
 
 
 def convert_nist(
@@ -189,7 +189,8 @@ def convert_nist(
     )
 
     def episode(demo: DemoRef):
-        frames, task = demo_episode(demo, options, counts, units, detected)
+        frames, task, unit = demo_episode(demo, options, counts, units)
+        detected[unit] += 1  # the writer reads the card when it publishes, so the tally is complete by then
         card.details["source units"] = ", ".join(f"{UNIT_NAMES[u]}: {n} demos" for u, n in sorted(detected.items()))
         card.details["source units"] += " (given by --units)" if units != "auto" else " (detected from cloud extent)"
         return frames, options.task or task

@@ -140,8 +140,7 @@ def write_dataset(
             except (DemoError, PointCloudError) as exc:
                 if not options.skip_invalid:
                     raise
-                message = str(exc)
-                writer.skip(demo.source, message.removeprefix(f"{demo.source}: "))
+                writer.skip(demo.source, str(exc).removeprefix(f"{demo.source}: "))
         if writer.num_episodes == 0:
             reasons = "; ".join(f"{s.source}: {s.reason}" for s in writer.skipped[:3])
             raise DemoError(f"every one of the {len(demos)} demos was invalid, nothing to write ({reasons})")
