@@ -162,6 +162,32 @@ def quaternion_xyzw_to_matrix(quaternion: ArrayLike):
     return _like_input(rotation, was_numpy)
 
 
+def matrix_to_quaternion_xyzw(rotation: ArrayLike):
+    """Rotations (..., 3, 3) -> unit quaternions (x, y, z, w) with w >= 0 (inverse of the function above).
+
+    Shepperd's method: build the quaternion from whichever of w, x, y, z has the largest magnitude, which
+    stays accurate near 180-degree rotations where the trace formula alone loses precision.
+    """
+    r_in, was_numpy = _as_tensor(rotation)
+    r = r_in.double()
+    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    candidates = torch.stack(
+        [
+            torch.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1], 1 + m00 + m11 + m22], -1),
+            torch.stack([1 + m00 - m11 - m22, r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 2, 1] - r[..., 1, 2]], -1),
+            torch.stack([r[..., 0, 1] + r[..., 1, 0], 1 - m00 + m11 - m22, r[..., 1, 2] + r[..., 2, 1], r[..., 0, 2] - r[..., 2, 0]], -1),
+            torch.stack([r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1], 1 - m00 - m11 + m22, r[..., 1, 0] - r[..., 0, 1]], -1),
+        ],
+        -2,
+    )  # (..., 4, 4): row k is 4*q_k times q, for k = w, x, y, z
+    pivots = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    best = pivots.argmax(-1, keepdim=True)
+    q = torch.gather(candidates, -2, best.unsqueeze(-1).expand(*best.shape, 4)).squeeze(-2)
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    q = torch.where(q[..., 3:4] < 0, -q, q)
+    return _like_input(q if was_numpy else q.to(r_in.dtype), was_numpy)
+
+
 def pose_to_matrix(position: ArrayLike, quaternion_xyzw: ArrayLike):
     """Position (..., 3) and xyzw quaternion (..., 4) -> homogeneous transforms (..., 4, 4)."""
     p, was_numpy = _as_tensor(position)

@@ -1,0 +1,106 @@
+"""What every placement task defines, and the constants the pipeline reads from it.
+
+A task samples scenes (pure data, reproducible from a seed and a split), builds them in a pybullet
+world, lists every valid goal, says where its cameras are, which way the controller approaches a
+goal, and how to judge the settled (or held) result. The shared pipeline in `trials.py` does the rest:
+demonstrations, observations, execution and the upside-down test.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS
+from lerobot_taxdpd.sim.cameras import CameraSpec
+
+
+@dataclass(frozen=True)
+class GoalMode:
+    """One way to solve a scene (a peg, a slot, a support, a socket) and its equally valid object poses.
+
+    `poses` are world poses of the object; several when the object is symmetric or can be mirrored there
+    (a box-shaped book turned around, a mug hung facing either way). `symmetric` says the poses occupy
+    exactly the same space (symmetries of the object), so reaching one of them means reaching all.
+    """
+
+    label: str
+    poses: tuple[np.ndarray, ...]
+    symmetric: bool = False
+
+
+@dataclass(frozen=True)
+class BuiltScene:
+    """Body ids of a scene built in one pybullet client."""
+
+    object_id: int
+    parent_ids: tuple[int, ...]  # what the scene cloud shows: racks, shelf and books, sockets, ...
+    table_id: int
+
+    @property
+    def obstacles(self) -> tuple[int, ...]:
+        return (*self.parent_ids, self.table_id)
+
+
+class PlacementTask(ABC):
+    """Base class of the procedural benchmarks; subclasses set the class attributes below."""
+
+    name: str
+    description: str  # the plain-language task string written to datasets
+    point_count_key: str  # key of DEFAULT_POINT_COUNTS (the paper's point counts of the analogous task)
+    holds_object: bool = False  # insertion: the gripper keeps the plug; rigid tasks release and settle
+    approach_distance: float = 0.15
+    coarse_step: float = 0.005
+    fine_step: float = 0.0005
+    penetration_tolerance: float = 0.001
+    settle_seconds: float = 1.0
+    depth_noise: float = 0.001  # std of simulated depth noise, metres
+    perturbation: tuple[float, float] = (0.02, 15.0)  # tolerance-scale error (metres, degrees)
+    coverage_threshold: float = 0.02  # RMSE (metres) under which a sample counts as reaching a goal
+
+    @property
+    def num_points(self) -> tuple[int, int]:
+        """(N_O, N_S) of observations and datasets."""
+        return DEFAULT_POINT_COUNTS[self.point_count_key]
+
+    @abstractmethod
+    def sample_scene(self, rng: np.random.Generator, split: str) -> Any:
+        """Geometry and poses of one scene; pure data, so the scene can be rebuilt anywhere."""
+
+    @abstractmethod
+    def build(self, client: int, scene: Any) -> BuiltScene:
+        """Create the table, the scene bodies and the object (at its start pose) in `client`."""
+
+    @abstractmethod
+    def start_pose(self, scene: Any) -> np.ndarray:
+        """World pose of the object when it is observed."""
+
+    @abstractmethod
+    def goal_modes(self, scene: Any) -> list[GoalMode]:
+        """Every candidate valid goal; the pipeline drops the ones the controller cannot reach."""
+
+    @abstractmethod
+    def object_cameras(self, scene: Any) -> list[CameraSpec]:
+        """Cameras that see the object at its start pose (two or more, partial views)."""
+
+    @abstractmethod
+    def scene_cameras(self, scene: Any) -> list[CameraSpec]:
+        """Cameras that see the scene (two or more)."""
+
+    @abstractmethod
+    def approach_direction(self, scene: Any, goal_pose: np.ndarray) -> np.ndarray:
+        """Unit world vector along which the controller moves the object into `goal_pose`."""
+
+    @abstractmethod
+    def check_result(self, client: int, built: BuiltScene, scene: Any) -> str | None:
+        """Judge the object after it settled (or, for held objects, where the controller left it).
+
+        Returns None on success, else a short reason ("fell to the table", "not seated: 2.1 mm high").
+        """
+
+    def gripper_start_pose(self, scene: Any) -> np.ndarray | None:
+        """World pose of the gripper holding the object when it is observed (insertion tasks only)."""
+        return None
