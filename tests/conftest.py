@@ -40,3 +40,9 @@ def run_cli(name: str, *args: str, timeout: float = 600, cwd: Path | None = None
 def hf_home() -> Path:
     """The session's private, offline Hugging Face home."""
     return _HF_HOME
+
+
+@pytest.fixture
+def cli():
+    """`run_cli` as a fixture (a dependency installs its own top-level `tests` package, so don't import it)."""
+    return run_cli
