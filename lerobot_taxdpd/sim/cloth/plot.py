@@ -22,6 +22,9 @@ def plot_trial(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    scene = np.concatenate([hangers, cloth, *valid_goals])
+    centre, half = scene.mean(axis=0), 0.5 * np.ptp(scene, axis=0).max() + 0.2
+    low, high = centre - half, centre + half
     figure = plt.figure(figsize=(7, 6))
     axes = figure.add_subplot(projection="3d")
     axes.scatter(*hangers.T, s=2, c="0.4", label="hangers")
@@ -29,11 +32,12 @@ def plot_trial(
     for i, goal in enumerate(valid_goals):
         axes.scatter(*goal.T, s=1, c="tab:green", alpha=0.25, label="valid goals" if i == 0 else None)
     if predicted_goal is not None:
-        axes.scatter(*predicted_goal.T, s=3, c="tab:red", label="predicted goal")
-    everything = np.concatenate([hangers, cloth, *valid_goals, *([predicted_goal] if predicted_goal is not None else [])])
-    centre, half = everything.mean(axis=0), 0.5 * np.ptp(everything, axis=0).max()
-    axes.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half))
-    axes.set(zlim=(max(0.0, centre[2] - half), centre[2] + half), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
+        inside = np.all((predicted_goal >= low) & (predicted_goal <= high), axis=1)
+        axes.scatter(*predicted_goal[inside].T, s=3, c="tab:red", label="predicted goal")
+        if not inside.all():
+            title += f" ({int((~inside).sum())} predicted points outside the view)"
+    axes.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]), zlim=(max(0.0, low[2]), high[2]))
+    axes.set(xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
     axes.set_title(title, fontsize=9)
     axes.legend(loc="upper left", fontsize=7, markerscale=4)
     path = Path(path)

@@ -1,0 +1,218 @@
+"""Evaluation of the cloth-hanging pipeline on held-out scenes.
+
+Per trial (one scene): the valid goals are found by running the expert for every (hole, hanger); the
+goal predictor (a `taxdpd` checkpoint) samples K goal clouds from the start cloth and the hangers, scored
+by coverage and precision against the valid goals; the `gc_dp3` policy then hangs the cloth conditioned
+on the first predicted goal, and separately on one ground-truth goal (an upper bound). Trials are
+independent and run in parallel processes; each trial is seeded by its scene seed, so results do not
+depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import platform
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_taxdpd.metrics import coverage_precision, success_summary
+from lerobot_taxdpd.schema import GOAL_CLOUD_KEY
+from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
+from lerobot_taxdpd.sim.cloth.plot import plot_trial
+from lerobot_taxdpd.sim.cloth.rollout import Controller, rollout, valid_goals
+from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
+
+
+@dataclass(frozen=True)
+class TrialRequest:
+    split: str
+    seed: int
+    policy_path: str | None
+    goal_policy_path: str | None
+    ground_truth_goals: bool
+    num_goal_samples: int
+    goal_threshold: float
+    plot_dir: str | None
+    device: str
+    torch_threads: int | None
+
+
+def load_gc_dp3(path: str, device: str):
+    """The policy and its saved processors from a checkpoint folder (`.../pretrained_model`)."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
+
+    policy = GcDp3Policy.from_pretrained(path)
+    policy.config.device = device
+    policy.to(device).eval()
+    overrides = {"device_processor": {"device": device}}
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy.config, pretrained_path=path, preprocessor_overrides=overrides
+    )
+    return policy, preprocessor, postprocessor
+
+
+def policy_controller(policy, preprocessor, postprocessor, goal: np.ndarray) -> Callable[[ClothHangEnv], Controller]:
+    """gc_dp3 as a controller: observation + the goal cloud -> gripper deltas."""
+    goal_tensor = torch.from_numpy(np.asarray(goal, dtype=np.float32))
+
+    def make(env: ClothHangEnv) -> Controller:
+        policy.reset()
+
+        def act(observation: dict[str, np.ndarray]) -> np.ndarray:
+            batch = {key: torch.from_numpy(value) for key, value in observation.items()}
+            batch[GOAL_CLOUD_KEY] = goal_tensor
+            with torch.inference_mode():
+                action = postprocessor(policy.select_action(preprocessor(batch)))
+            return action.reshape(-1).cpu().numpy()
+
+        return act
+
+    return make
+
+
+def run_trial(request: TrialRequest) -> dict:
+    """One held-out scene: valid goals, goal-predictor metrics and policy rollouts."""
+    if request.torch_threads:
+        torch.set_num_threads(request.torch_threads)
+    started = time.perf_counter()
+    env = ClothHangEnv(request.split)
+    try:
+        scene = sample_scene(request.split, request.seed, env.ranges)
+        goal_vertices = valid_goals(env, scene)
+        env.reset(options={"scene": scene})
+        start_cloud, hanger_cloud = env.cloth_points(), env.hanger_points
+        keys = sorted(goal_vertices)
+        goals = [env.samples.points(goal_vertices[key], env.mesh.faces) for key in keys]
+        result: dict = {"seed": request.seed, "holes": len(scene.holes), "valid_goals": [list(k) for k in keys]}
+        if not goals:
+            result["seconds"] = time.perf_counter() - started
+            return result
+        executor = load_gc_dp3(request.policy_path, request.device) if request.policy_path else None
+        rng = np.random.default_rng([SPLITS.index(request.split), request.seed, 4])
+        if request.ground_truth_goals and executor is not None:
+            torch.manual_seed(request.seed)
+            episode = rollout(env, scene, policy_controller(*executor, goals[int(rng.integers(len(goals)))]))
+            result["ground_truth_goal"] = {"success": episode.success, "seconds": episode.seconds}
+        predicted = None
+        if request.goal_policy_path:
+            predicted = sample_goals(request.goal_policy_path, start_cloud, hanger_cloud, request.num_goal_samples)
+            result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
+            if executor is not None:
+                torch.manual_seed(request.seed)
+                episode = rollout(env, scene, policy_controller(*executor, predicted[0]))
+                result["predicted_goal"] = {"success": episode.success, "seconds": episode.seconds}
+        if request.plot_dir:
+            path = Path(request.plot_dir) / f"{request.split}_{request.seed:04d}.png"
+            shown = predicted[0] if predicted is not None else None
+            title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goals"
+            result["plot"] = str(plot_trial(path, hanger_cloud, start_cloud, goals, shown, title))
+        result["seconds"] = time.perf_counter() - started
+        return result
+    finally:
+        env.close()
+
+
+def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int) -> np.ndarray:
+    """K goal clouds (K, N, 3) from a `taxdpd` checkpoint for one scene."""
+    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+
+    predictor = TaxDPDPolicy.from_pretrained(path).eval()
+    with torch.inference_mode():
+        samples = predictor.sample_goals(
+            torch.from_numpy(cloth).float()[None], torch.from_numpy(hangers).float()[None], num_samples
+        )
+    return samples[0].cpu().numpy().astype(np.float64)
+
+
+def run_trials(requests: list[TrialRequest], workers: int) -> Iterator[dict]:
+    if workers <= 1:
+        yield from map(run_trial, requests)
+        return
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield from pool.map(run_trial, requests)
+
+
+def summarise(trials: list[dict], config: dict, workers: int) -> dict:
+    """Success rates with Wilson intervals, goal metrics and timings, with the machine beside them."""
+    summary: dict = {
+        "machine": f"{platform.machine()} {platform.processor() or platform.platform()}, {os.cpu_count()} CPUs",
+        "torch_threads": torch.get_num_threads(),
+        "workers": workers,
+        "config": config,
+        "trials": len(trials),
+        "trials_with_valid_goals": sum(bool(t["valid_goals"]) for t in trials),
+        "median_seconds_per_trial": float(np.median([t["seconds"] for t in trials])),
+    }
+    for name in ("ground_truth_goal", "predicted_goal"):
+        runs = [t[name] for t in trials if name in t]
+        if runs:
+            summary[name] = success_summary(sum(r["success"] for r in runs), len(runs))
+            summary[name]["median_seconds_per_episode"] = float(np.median([r["seconds"] for r in runs]))
+    metrics = [t["goal_metrics"] for t in trials if "goal_metrics" in t]
+    if metrics:
+        summary["goal_metrics"] = {key: float(np.mean([m[key] for m in metrics])) for key in metrics[0]}
+    summary["per_trial"] = trials
+    return summary
+
+
+def evaluate(
+    *,
+    split: str,
+    seed: int,
+    trials: int,
+    output: Path,
+    policy_path: str | None = None,
+    goal_policy_path: str | None = None,
+    ground_truth_goals: bool = False,
+    num_goal_samples: int = 10,
+    goal_threshold: float = 0.5,
+    plots: int = 5,
+    workers: int = 1,
+    device: str = "cpu",
+) -> dict:
+    """Run `trials` scenes (seeds seed..seed+trials-1), write `<output>/eval_cloth_hang.json`, return it."""
+    if trials < 1:
+        raise ValueError(f"trials: must be at least 1, got {trials}")
+    if not (goal_policy_path or (policy_path and ground_truth_goals)):
+        raise ValueError(
+            "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
+            "predicted goals) and/or --policy.path with --ground-truth-goals"
+        )
+    for name, path in (("policy.path", policy_path), ("goal-policy.path", goal_policy_path)):
+        if path and not (Path(path) / "config.json").is_file():
+            raise FileNotFoundError(f"--{name}: {path} has no config.json (expected a checkpoint's pretrained_model folder)")
+    output = Path(output)
+    output.mkdir(parents=True, exist_ok=True)
+    config = {
+        "split": split, "seeds": f"{seed}..{seed + trials - 1}", "policy_path": policy_path,
+        "goal_policy_path": goal_policy_path, "num_goal_samples": num_goal_samples,
+        "goal_threshold_m": goal_threshold, "device": device,
+    }
+    requests = [
+        TrialRequest(
+            split=split, seed=s, policy_path=policy_path, goal_policy_path=goal_policy_path,
+            ground_truth_goals=ground_truth_goals, num_goal_samples=num_goal_samples, goal_threshold=goal_threshold,
+            plot_dir=str(output / "plots") if i < plots else None, device=device,
+            torch_threads=1 if workers > 1 else None,
+        )
+        for i, s in enumerate(range(seed, seed + trials))
+    ]
+    summary = summarise(list(run_trials(requests, workers)), config, workers)
+    (output / "eval_cloth_hang.json").write_text(json.dumps(summary, indent=2, default=_jsonable))
+    return summary
+
+
+def _jsonable(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")

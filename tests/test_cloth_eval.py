@@ -1,0 +1,104 @@
+"""`eval --task cloth_hang`: valid goals, goal-predictor metrics, gc_dp3 rollouts, PNGs, in parallel workers.
+
+The checkpoints are untrained (saved the way lerobot-train saves them): this checks the pipeline and its
+report, not the policies' skill.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, make_gc_dp3_pre_post_processors
+from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
+from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.sim.cloth.cli import main
+
+CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    root = tmp_path_factory.mktemp("checkpoints")
+    inputs = {OBJECT_KEY: CLOUD, SCENE_KEY: CLOUD, GOAL_CLOUD_KEY: CLOUD, STATE_KEY: PolicyFeature(FeatureType.STATE, (12,))}
+    config = GcDp3Config(
+        input_features=inputs,
+        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (6,))},
+        down_dims=(16, 32),
+        point_encoder_dims=(16, 16),
+        point_feature_dim=16,
+        state_encoder_dims=(16, 16),
+        diffusion_step_embed_dim=16,
+        num_inference_steps=2,
+        points_per_cloud=64,
+        device="cpu",
+    )
+    torch.manual_seed(0)
+    policy = GcDp3Policy(config)
+    stats = {
+        STATE_KEY: {"min": torch.tensor([-4.0, -4.0, 4.0] * 2 + [-2.0] * 6), "max": torch.tensor([4.0, 2.0, 8.0] * 2 + [2.0] * 6)},
+        ACTION_KEY: {"min": torch.full((6,), -0.08), "max": torch.full((6,), 0.08)},
+    }
+    gc_dp3 = root / "gc_dp3"
+    policy.save_pretrained(gc_dp3)
+    for pipeline in make_gc_dp3_pre_post_processors(config, dataset_stats=stats):
+        pipeline.save_pretrained(gc_dp3)
+    goal_config = TaxDPDConfig(
+        input_features={OBJECT_KEY: CLOUD, SCENE_KEY: CLOUD},
+        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (512, 3))},
+        num_scene_points=512,
+        hidden_dim=16,
+        num_blocks=1,
+        num_heads=2,
+        max_neighbors=16,
+        num_inference_steps=2,
+        point_scale=1.0,
+        device="cpu",
+    )
+    taxdpd = root / "taxdpd"
+    TaxDPDPolicy(goal_config).save_pretrained(taxdpd)
+    return gc_dp3, taxdpd
+
+
+def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
+    gc_dp3, taxdpd = checkpoints
+    out = tmp_path / "eval"
+    argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--plots", "1"]
+    argv += ["--policy.path", str(gc_dp3), "--goal-policy.path", str(taxdpd), "--ground-truth-goals"]
+    assert main([*argv, "--num-goal-samples", "3", "--output", str(out)]) == 0
+    summary = json.loads((out / "eval_cloth_hang.json").read_text())
+    assert summary["trials"] == 2 and summary["workers"] == 2 and summary["config"]["split"] == "test"
+    assert "CPUs" in summary["machine"] and summary["torch_threads"] >= 1
+    for name in ("ground_truth_goal", "predicted_goal"):
+        rate = summary[name]
+        assert rate["trials"] == 2 and 0.0 <= rate["ci95_low"] <= rate["success_rate"] <= rate["ci95_high"] <= 1.0
+        assert rate["median_seconds_per_episode"] > 0
+    trials = summary["per_trial"]
+    assert [t["seed"] for t in trials] == [8, 9]
+    for trial in trials:
+        assert trial["holes"] == 1
+        assert trial["valid_goals"] == [[0, 0], [0, 1]], "the expert hangs the one hole on either hanger"
+    metrics = summary["goal_metrics"]
+    assert 0.0 < metrics["precision_rmse"] and 0.0 < metrics["coverage_rmse"]
+    assert 0.0 <= metrics["coverage"] <= 1.0 and 0.0 <= metrics["precision"] <= 1.0
+    plots = sorted((out / "plots").glob("*.png"))
+    assert [p.name for p in plots] == ["test_0008.png"]
+    assert plots[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert summary["median_seconds_per_trial"] > 0
+
+
+def test_eval_explains_what_is_missing(checkpoints, tmp_path):
+    gc_dp3, _ = checkpoints
+    base = ["eval", "--task", "cloth_hang", "--trials", "1", "--output", str(tmp_path)]
+    with pytest.raises(ValueError, match="goal-policy.path"):
+        main([*base, "--policy.path", str(gc_dp3)])
+    with pytest.raises(FileNotFoundError, match="--policy.path"):
+        main([*base, "--policy.path", str(tmp_path / "nowhere"), "--ground-truth-goals"])
+    with pytest.raises(ValueError, match="trials"):
+        main([*base[:-4], "--trials", "0", "--policy.path", str(gc_dp3), "--ground-truth-goals"])
+    assert not np.any([p.suffix == ".json" for p in tmp_path.iterdir()])
