@@ -67,10 +67,17 @@ class LocalDenoiser(nn.Module):
     def context(self, object_centred: Tensor, scene: Tensor) -> DenoiserContext:
         """Cache the work that does not depend on the goal estimate.
 
-        `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3):
-        object-only work is done once per object and repeated.
+        `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3), i.e.
+        K translated copies of each scene: object-only work, and the farthest point sampling (invariant to
+        translation), are done once per object and scene and repeated.
         """
         repeats = scene.shape[0] // object_centred.shape[0]
+        reconstruction_layout = scene_features = None
+        if self.use_reconstruction:
+            layout = self.reconstruction_encoder.layout([object_centred, scene[::repeats]])
+            reconstruction_layout = layout.repeat_interleave(repeats) if layout is not None else None
+        else:
+            scene_features = self.scene_encoder(scene, _empty_channels(scene))
         object_layout = self.object_encoder.layout([object_centred])
         object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
         object_features = self.object_encoder(
@@ -81,11 +88,6 @@ class LocalDenoiser(nn.Module):
             object_features = object_features.repeat_interleave(repeats, 0)
             object_layout = object_layout.repeat_interleave(repeats) if object_layout else None
             object_grouping = object_grouping.repeat_interleave(repeats) if object_grouping else None
-        reconstruction_layout = scene_features = None
-        if self.use_reconstruction:
-            reconstruction_layout = self.reconstruction_encoder.layout([object_centred, scene])
-        else:
-            scene_features = self.scene_encoder(scene, _empty_channels(scene))
         return DenoiserContext(
             object_centred, scene, object_layout, object_grouping, object_features, reconstruction_layout, scene_features
         )
