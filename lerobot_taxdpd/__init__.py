@@ -11,6 +11,7 @@ from lerobot_taxdpd.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
 from lerobot_taxdpd.processor_gc_dp3 import make_gc_dp3_pre_post_processors
 from lerobot_taxdpd.processor_taxdpd import make_taxdpd_pre_post_processors
+from lerobot_taxdpd.sim import env_config as _sim_env_config  # noqa: F401  (registers --env.type=taxdpd_sim)
 
 __version__ = "0.1.0"
 

@@ -60,7 +60,16 @@ def coverage_precision(predictions, goals, threshold: float) -> dict[str, float]
     precision: fraction of samples within `threshold` of some valid goal;
     coverage_rmse / precision_rmse: mean over goals (samples) of the best RMSE to any sample (goal).
     """
-    rmse = pairwise_rmse(predictions, goals)
+    return coverage_precision_from_rmse(pairwise_rmse(predictions, goals), threshold)
+
+
+def coverage_precision_from_rmse(rmse, threshold: float) -> dict[str, float]:
+    """`coverage_precision` from a (K samples, M goals) RMSE matrix.
+
+    Lets callers fold equivalent goals first, e.g. take the min over the symmetric poses of one slot so
+    that a slot counts once however its object is turned.
+    """
+    rmse = _np(rmse)
     best_per_goal = rmse.min(0)
     best_per_sample = rmse.min(1)
     return {

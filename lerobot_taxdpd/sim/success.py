@@ -5,7 +5,10 @@ own conditions: handle on a peg, book in a slot, can upright on a support, plug 
 the upside-down test: with gravity reversed (equivalent to flipping the scene) and the table removed,
 an object that merely rests on or hangs from its parent falls away (it leaves the parent, or at least
 moves until something else stops it, like a can inside a cabinet), while one that is wedged into it
-(an interpenetrating placement) stays where it is.
+(an interpenetrating placement) stays where it is. Bullet resolves deep penetrations by pushing bodies
+apart, so a wedged object can slip out once flipped (measured: a block 3 mm into each of two walls
+does); the test therefore also rejects an object that starts it more than `WEDGE_TOLERANCE` inside its
+parent.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as pb
 
+from lerobot_taxdpd.sim.controller import penetration
 from lerobot_taxdpd.sim.world import GRAVITY, simulate
 
 UPSIDE_DOWN_SECONDS = 2.0
@@ -23,6 +27,8 @@ UPSIDE_DOWN_SECONDS = 2.0
 UPSIDE_DOWN_FRICTION = 0.05
 #: How far an object must move during the upside-down test if it still touches its parent afterwards.
 UPSIDE_DOWN_MIN_TRAVEL = 0.005
+#: Deeper than resting contacts ever settle (< 1 mm), shallower than any real interpenetration.
+WEDGE_TOLERANCE = 0.002
 
 
 def contact_points(client: int, body: int, other: int, distance: float = 0.001) -> list[tuple]:
@@ -38,6 +44,8 @@ def upside_down_test(
     client: int, body: int, parents: Sequence[int], table: int, seconds: float = UPSIDE_DOWN_SECONDS
 ) -> bool:
     """True if `body` falls away from its parents once gravity is reversed (the table taken away)."""
+    if penetration(client, body, parents) > WEDGE_TOLERANCE:
+        return False
     before = np.asarray(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])
     for link in range(-1, pb.getNumJoints(body, physicsClientId=client)):
         pb.setCollisionFilterPair(body, table, link, -1, 0, physicsClientId=client)

@@ -51,6 +51,7 @@ class PlacementTask(ABC):
     name: str
     description: str  # the plain-language task string written to datasets
     point_count_key: str  # key of DEFAULT_POINT_COUNTS (the paper's point counts of the analogous task)
+    multi_modal: bool = False  # scenes can have several valid goals: report coverage@K and precision@K
     holds_object: bool = False  # insertion: the gripper keeps the plug; rigid tasks release and settle
     approach_distance: float = 0.15
     coarse_step: float = 0.005

@@ -4,7 +4,7 @@ Valid goals: every free slot, the book standing upright on the shelf board 1.5 m
 the slot and 4 mm in front of the back wall, in each of its four box symmetries. The controller pushes
 the book in from the open front, perpendicular to the back wall. Success: after settling the book is
 upright (within 15 deg), rests on the board between two neighbours of a free slot, does not touch the
-table or penetrate the shelf by more than 2 mm, and rises out of the open-topped shelf upside down.
+table, and rises out of the open-topped shelf upside down (which also rejects any book wedged into it).
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import numpy as np
 
 from lerobot_taxdpd.sim.bodies import create_body
 from lerobot_taxdpd.sim.cameras import CameraSpec, orbit_cameras
-from lerobot_taxdpd.sim.controller import penetration
 from lerobot_taxdpd.sim.designs.shelves import BACK_GAP, BOOK_SPACE, SHELF_SPACE, ShelfDesign, book_parts, shelf_design
 from lerobot_taxdpd.sim.poses import body_pose, quaternion, rot_x, rot_y, rot_z, tilt_deg, transform
 from lerobot_taxdpd.sim.success import touching
@@ -39,6 +38,7 @@ class BookShelfTask(PlacementTask):
     name = "book_shelf"
     description = "put the book upright into a free slot of the bookshelf"
     point_count_key = "book_on_bookshelf_double_view_rnd_ori"
+    multi_modal = True
     perturbation = (0.02, 15.0)
     coverage_threshold = 0.02
     approach_distance = 0.30
@@ -107,7 +107,4 @@ class BookShelfTask(PlacementTask):
         bottom = local[2] - scene.book["height"] / 2 * np.cos(np.radians(upright))
         if abs(bottom - shelf.floor_z) > 0.005:
             return f"not resting on the shelf board ({(bottom - shelf.floor_z) * 1000:.0f} mm above it)"
-        depth = penetration(client, built.object_id, built.parent_ids)
-        if depth > 0.002:
-            return f"penetrates the shelf by {depth * 1000:.1f} mm"
         return None

@@ -39,7 +39,8 @@ class CanCabinetTask(PlacementTask):
     name = "can_cabinet"
     description = "put the can on top of a stack of cans or on the open shelf of the cabinet"
     point_count_key = "can_in_cabinet_stack"
-    perturbation = (0.04, 20.0)
+    multi_modal = True
+    perturbation = (0.05, 25.0)  # a can radius plus the gap to its neighbours: cans tolerate more than mugs
     coverage_threshold = 0.025
     approach_distance = 0.35
 

@@ -61,6 +61,7 @@ class InsertionTask(PlacementTask):
         self.name = name
         self.connector = connector
         self.multi = multi
+        self.multi_modal = multi
         self.description = description
 
     # ------------------------------------------------------------------------------------------- scene
@@ -81,7 +82,7 @@ class InsertionTask(PlacementTask):
         else:
             sockets = [(self.connector, socket, transform(translation=(0.0, 0.0, socket.mouth_height)))]
             valid = (0,)
-            half = (socket.half_extent + 0.015, socket.half_extent + 0.015)
+            half = (socket.half_extent + 0.006, socket.half_extent + 0.006)
         board_pose = transform(rot_z(rng.uniform(-0.25, 0.25)), (rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), BOARD_THICKNESS))
         grasp = transform(
             rot_y(np.radians(rng.uniform(-10.0, 10.0))),

@@ -53,6 +53,7 @@ class MugRackTask(PlacementTask):
         self.name = name
         self.num_racks = num_racks
         self.pegs_per_rack = pegs_per_rack
+        self.multi_modal = num_racks * pegs_per_rack > 1
         self.point_count_key = point_count_key
         self.description = description
 

@@ -1,0 +1,188 @@
+"""The evaluation harness: run a goal predictor on held-out trials and report it under DESIGN's names.
+
+For every trial the predictor samples K goal clouds; the first is executed (one shot, no reranking, as
+in the paper) after RANSAC-SVD turns it into a pose. Errors are measured against the valid goal nearest
+to the executed sample (the demonstrated goal when the task has one mode and the object no symmetry),
+so a sample that solves the scene another valid way is not penalised. Multi-modal tasks also get
+coverage@K and precision@K, counting each mode (peg, slot, support, socket) once.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import torch
+from tqdm import tqdm
+
+from lerobot_taxdpd.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.metrics import (
+    coverage_precision_from_rmse,
+    pairwise_rmse,
+    point_rmse,
+    rotation_error_deg,
+    success_summary,
+    transform_errors,
+    translation_error,
+)
+from lerobot_taxdpd.sim.figures import plot_goal_samples, plot_weight_map
+from lerobot_taxdpd.sim.predictors import GoalPredictor
+from lerobot_taxdpd.sim.trials import Trial, execute
+
+def _sample(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
+    """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked."""
+    object_points = torch.from_numpy(trial.object_points)[None]
+    scene_points = torch.from_numpy(trial.scene_points)[None]
+    with torch.inference_mode():
+        samples = predictor.sample_goals(object_points, scene_points, num_samples)
+    samples = np.asarray(samples.detach().cpu() if isinstance(samples, torch.Tensor) else samples, dtype=np.float64)
+    expected = (1, num_samples, *trial.object_points.shape)
+    if samples.shape != expected:
+        raise ValueError(f"{type(predictor).__name__}.sample_goals returned shape {samples.shape}, expected {expected}")
+    if not np.isfinite(samples).all():
+        raise ValueError(f"{type(predictor).__name__}.sample_goals returned NaN or infinite coordinates")
+    return samples[0]
+
+
+def _summary(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    array = np.asarray(values)
+    return {"median": float(np.median(array)), "mean": float(array.mean()), "p90": float(np.percentile(array, 90))}
+
+
+def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dict:
+    """Errors of the executed sample (row 0 of `samples`, posed by `transform`) and of all K samples."""
+    object_points = trial.object_points.astype(np.float64)
+    valid = trial.valid_transforms()
+    goals = [transform_points(t, object_points) for t in valid]  # per mode: (V, N, 3)
+    flat_goals = np.concatenate(goals)
+    flat_transforms = np.concatenate(valid)
+    rmse = pairwise_rmse(samples, flat_goals)  # (K, all variants)
+    nearest = int(np.argmin(rmse[0]))
+    reference = flat_goals[nearest]
+    executed = samples[0]
+    record = {
+        "translation_error_mm": float(translation_error(executed, reference)) * 1000,
+        "rotation_error_deg": float(rotation_error_deg(executed, reference)),
+        "rmse_mm": float(point_rmse(executed, reference)) * 1000,
+        "winner_take_all_rmse_mm": float(rmse.min()) * 1000,
+        "nearest_goal_mode": trial.modes[int(np.searchsorted(np.cumsum([len(g) for g in goals]), nearest, side="right"))].label,
+    }
+    if trial.gripper_pose is not None:
+        translation, rotation = transform_errors(transform @ trial.gripper_pose, flat_transforms[nearest] @ trial.gripper_pose)
+        record["gripper_translation_error_mm"] = float(translation) * 1000
+        record["gripper_rotation_error_deg"] = float(rotation)
+    if trial.task.multi_modal:
+        bounds = np.cumsum([0, *[len(g) for g in goals]])
+        per_mode = np.stack([rmse[:, a:b].min(1) for a, b in zip(bounds[:-1], bounds[1:])], 1)  # (K, modes)
+        quality = coverage_precision_from_rmse(per_mode, trial.task.coverage_threshold)
+        record.update(coverage=quality["coverage"], precision=quality["precision"], num_modes=len(goals))
+    return record
+
+
+def evaluate(
+    predictor: GoalPredictor,
+    trials: Iterable[Trial],
+    num_samples: int,
+    *,
+    figures_dir: Path | None = None,
+    num_figures: int = 3,
+    progress: bool = True,
+    total: int | None = None,
+) -> dict:
+    """Run every trial and return the report (see module docstring); PNGs go to `figures_dir`."""
+    if num_samples < 1:
+        raise ValueError(f"num_samples: must be at least 1, got {num_samples}")
+    if not isinstance(predictor, GoalPredictor):
+        raise TypeError(f"{type(predictor).__name__} has no sample_goals(object_points, scene_points, num_samples)")
+    if figures_dir is not None:
+        figures_dir = Path(figures_dir)
+        figures_dir.mkdir(parents=True, exist_ok=True)
+    records, figures, task = [], [], None
+    started = time.perf_counter()
+    for index, trial in enumerate(tqdm(trials, total=total, desc="trials", disable=not progress)):
+        task = trial.task
+        tick = time.perf_counter()
+        samples = _sample(predictor, trial, num_samples)
+        predict_seconds = time.perf_counter() - tick
+        transform, _ = estimate_rigid_transform(trial.object_points.astype(np.float64), samples[0])
+        outcome = execute(trial, transform)
+        record = {"seed": trial.seed, "success": outcome.success, "failure": outcome.reason, "reached_goal": outcome.reached_goal}
+        record.update(score_trial(trial, samples, transform))
+        record["predict_seconds"] = predict_seconds
+        record["seconds"] = time.perf_counter() - tick
+        records.append(record)
+        if figures_dir is not None and index < num_figures:
+            figures.append(str(plot_goal_samples(trial, samples, figures_dir / f"{task.name}_seed{trial.seed}_samples.png", success=outcome.success)))
+            if hasattr(predictor, "placement_distribution"):
+                with torch.inference_mode():
+                    weights, means = predictor.placement_distribution(
+                        torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]
+                    )
+                path = figures_dir / f"{task.name}_seed{trial.seed}_gmm.png"
+                figures.append(str(plot_weight_map(trial, np.asarray(weights[0].cpu()), np.asarray(means[0].cpu()), path)))
+    if not records:
+        raise ValueError("no trials to evaluate")
+    return _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)
+
+
+def _report(task, split: str, records: list[dict], num_samples: int, figures: list[str], seconds: float) -> dict:
+    successes = sum(r["success"] for r in records)
+    report = {
+        "task": task.name,
+        "split": split,
+        "trials": len(records),
+        "num_samples": num_samples,
+        "success": success_summary(successes, len(records)),
+        "errors_against": "the valid goal nearest to the executed (first) sample",
+        "translation_error_mm": _summary([r["translation_error_mm"] for r in records]),
+        "rotation_error_deg": _summary([r["rotation_error_deg"] for r in records]),
+        "rmse_mm": _summary([r["rmse_mm"] for r in records]),
+        "winner_take_all_rmse_mm": _summary([r["winner_take_all_rmse_mm"] for r in records]),
+        "failures": dict(Counter(r["failure"].split(" (")[0] for r in records if not r["success"])),
+        "seconds_per_trial": _summary([r["seconds"] for r in records]),
+        "predict_seconds_per_trial": _summary([r["predict_seconds"] for r in records]),
+        "wall_seconds": seconds,
+        "machine": machine_info(),
+        "figures": figures,
+        "per_trial": records,
+    }
+    if "gripper_translation_error_mm" in records[0]:
+        report["gripper_translation_error_mm"] = _summary([r["gripper_translation_error_mm"] for r in records])
+        report["gripper_rotation_error_deg"] = _summary([r["gripper_rotation_error_deg"] for r in records])
+    if "coverage" in records[0]:
+        report[f"coverage@{num_samples}"] = float(np.mean([r["coverage"] for r in records]))
+        report[f"precision@{num_samples}"] = float(np.mean([r["precision"] for r in records]))
+        report["coverage_threshold_mm"] = task.coverage_threshold * 1000
+    return report
+
+
+def machine_info() -> dict:
+    """What the timings were measured on (the load average says how busy the machine was)."""
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0],
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "pybullet_api": pybullet.getAPIVersion(),
+    }
+
+
+def write_report(report: dict, path: Path) -> Path:
+    """Write the report atomically: a crash never leaves a half-written JSON behind."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(json.dumps(report, indent=2))
+    os.replace(partial, path)
+    return path

@@ -1,0 +1,100 @@
+"""What the evaluation harness evaluates: any goal predictor with `sample_goals`, and how to load one.
+
+The harness needs only `sample_goals`; it turns each sampled goal cloud into a pose with RANSAC-SVD
+itself (as the robot would, and as the lerobot-eval env does), so the pose it executes and the cloud it
+scores are always the same prediction. A predictor may also offer `placement_distribution` (TAX-DPD's
+Dense GMM), which the harness then plots.
+
+`OraclePredictor` is the benchmark's own reference: it answers with the ground truth of the trials it
+was built from, optionally off by a rigid error of fixed size. It calibrates the success checks
+(ground truth must succeed, tolerance-sized errors must fail) and bounds what a model can reach.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+from collections.abc import Iterable
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lerobot_taxdpd.geometry import transform_points
+from lerobot_taxdpd.sim.poses import perturbation, transform
+from lerobot_taxdpd.sim.trials import Trial
+
+
+@runtime_checkable
+class GoalPredictor(Protocol):
+    """Anything that samples goal clouds: (B, N_O, 3), (B, N_S, 3), K -> (B, K, N_O, 3), metres."""
+
+    def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor: ...
+
+
+def _cloud_key(points: np.ndarray) -> str:
+    return hashlib.sha1(np.ascontiguousarray(points, dtype=np.float32).tobytes()).hexdigest()
+
+
+class OraclePredictor:
+    """Ground-truth goals of known trials, with an optional rigid error of exactly the given size.
+
+    Sample 0 is the demonstrator's goal; further samples go through the other valid goals of the scene
+    in turn (one per mode), so K >= the number of modes covers them all. With `translation`/`rotation_deg`
+    each sample is moved by that distance in a random direction and turned by that angle about a random
+    axis through its centroid. Trials are recognised by their object cloud.
+    """
+
+    def __init__(self, trials: Iterable[Trial], translation: float = 0.0, rotation_deg: float = 0.0, seed: int = 0):
+        if translation < 0 or rotation_deg < 0:
+            raise ValueError(f"oracle error must be non-negative, got {translation} m and {rotation_deg} deg")
+        self.translation = translation
+        self.rotation_deg = rotation_deg
+        self._rng = np.random.default_rng(seed)
+        self._goals: dict[str, list[np.ndarray]] = {}
+        for trial in trials:
+            demo = trial.goal_transform
+            others = [t[0] for t in trial.valid_transforms() if not any(np.allclose(demo, v) for v in t)]
+            self._goals[_cloud_key(trial.object_points)] = [
+                transform_points(t, trial.object_points.astype(np.float64)) for t in (demo, *others)
+            ]
+
+    def _perturb(self, goal: np.ndarray) -> np.ndarray:
+        if self.translation == 0 and self.rotation_deg == 0:
+            return goal
+        rotation, shift = perturbation(self._rng, self.translation, self.rotation_deg)
+        centre = goal.mean(0)
+        return transform_points(transform(rotation, centre + shift - rotation @ centre), goal)
+
+    def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor:
+        batch = []
+        for cloud in torch.as_tensor(object_points).detach().cpu().numpy():
+            goals = self._goals.get(_cloud_key(cloud))
+            if goals is None:
+                raise ValueError("OraclePredictor: object_points do not belong to any trial it was built from")
+            batch.append(np.stack([self._perturb(goals[k % len(goals)]) for k in range(num_samples)]))
+        return torch.from_numpy(np.stack(batch).astype(np.float32))
+
+
+def load_policy(path: str):
+    """A trained TAX-DPD policy from a checkpoint folder or Hub id (imported only when asked for)."""
+    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+
+    policy = TaxDPDPolicy.from_pretrained(path)
+    policy.eval()
+    return policy
+
+
+def load_predictor(spec: str) -> GoalPredictor:
+    """`package.module:factory` -> factory(), for baselines outside this package."""
+    module_name, _, attribute = spec.partition(":")
+    if not module_name or not attribute:
+        raise ValueError(f"--predictor: expected 'oracle' or 'package.module:factory', got {spec!r}")
+    factory = getattr(importlib.import_module(module_name), attribute, None)
+    if factory is None:
+        raise ValueError(f"--predictor: {module_name!r} has no attribute {attribute!r}")
+    predictor = factory()
+    if not isinstance(predictor, GoalPredictor):
+        raise TypeError(f"--predictor: {spec} returned {type(predictor).__name__}, which has no sample_goals method")
+    return predictor

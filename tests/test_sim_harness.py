@@ -1,0 +1,123 @@
+"""The evaluation harness and its command line, driven by honest reference predictors: the ground truth
+(which must succeed and cover every mode) and the ground truth off by a known error (which must fail,
+and whose errors the report must measure as exactly that error)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import run_cli
+from lerobot_taxdpd.sim.cli import main
+from lerobot_taxdpd.sim.harness import evaluate, write_report
+from lerobot_taxdpd.sim.predictors import GoalPredictor, OraclePredictor
+from lerobot_taxdpd.sim.tasks import get_task
+from lerobot_taxdpd.sim.trials import make_trial
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _trials(name: str, count: int, first_seed: int = 0):
+    task = get_task(name)
+    return [make_trial(task, seed, "test") for seed in range(first_seed, first_seed + count)]
+
+
+class OracleWithGMM(OraclePredictor):
+    """The oracle plus a Dense-GMM-like map: weight of a scene point ~ exp(-distance to the true goal^2)."""
+
+    def __init__(self, trials):
+        super().__init__(trials)
+        self._by_cloud = [(t.object_points, t.goal_points().mean(0)) for t in trials]
+
+    def placement_distribution(self, object_points, scene_points):
+        cloud = object_points[0].numpy()
+        centre = next(c for o, c in self._by_cloud if np.array_equal(o, cloud))
+        distance = (scene_points[0] - torch.from_numpy(centre)).norm(dim=-1)
+        weights = torch.softmax(-(distance / 0.03) ** 2, dim=0)
+        return weights[None], scene_points.clone()
+
+
+def test_ground_truth_succeeds_covers_every_mode_and_draws_figures(tmp_path):
+    trials = _trials("mug_medrack", 3)
+    report = evaluate(OracleWithGMM(trials), trials, 4, figures_dir=tmp_path, num_figures=2, progress=False)
+    assert report["success"]["success_rate"] == 1.0 and report["success"]["trials"] == 3
+    assert report["success"]["ci95_low"] < 1.0 == report["success"]["ci95_high"]
+    assert report["translation_error_mm"]["median"] < 1e-3 and report["rotation_error_deg"]["median"] < 1e-3
+    assert report["winner_take_all_rmse_mm"]["median"] < 1e-3
+    # Two pegs: the oracle's K = 4 samples visit both, every sample is on a valid goal.
+    assert report["coverage@4"] == 1.0 and report["precision@4"] == 1.0
+    assert {r["num_modes"] for r in report["per_trial"]} == {2}
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["mug_medrack_seed0_gmm.png", "mug_medrack_seed0_samples.png", "mug_medrack_seed1_gmm.png", "mug_medrack_seed1_samples.png"]
+    assert all(p.read_bytes().startswith(PNG_SIGNATURE) for p in tmp_path.iterdir())
+    path = write_report(report, tmp_path / "out" / "report.json")
+    assert json.loads(path.read_text())["success"] == report["success"]
+
+
+def test_errors_are_measured_as_the_error_that_was_made():
+    trials = _trials("insert_waterproof", 3)
+    shifted = evaluate(OraclePredictor(trials, translation=0.003), trials, 2, progress=False)
+    assert shifted["success"]["success_rate"] < 1.0
+    assert shifted["translation_error_mm"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert shifted["rotation_error_deg"]["median"] < 0.01
+    # A pure translation moves the gripper by the same amount.
+    assert shifted["gripper_translation_error_mm"]["median"] == pytest.approx(3.0, abs=0.01)
+    turned = evaluate(OraclePredictor(trials, rotation_deg=3.0), trials, 2, progress=False)
+    assert turned["rotation_error_deg"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert turned["gripper_rotation_error_deg"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert "coverage@2" not in shifted  # one socket: no coverage to report
+
+
+def test_the_harness_rejects_what_is_not_a_goal_predictor():
+    trials = _trials("insert_ssd", 1)
+
+    class WrongShape:
+        def sample_goals(self, object_points, scene_points, num_samples):
+            return torch.zeros(1, num_samples, 7, 3)
+
+    class NotFinite:
+        def sample_goals(self, object_points, scene_points, num_samples):
+            return torch.full((1, num_samples, *object_points.shape[1:]), float("nan"))
+
+    with pytest.raises(ValueError, match=r"WrongShape.sample_goals returned shape \(1, 2, 7, 3\), expected \(1, 2, 512, 3\)"):
+        evaluate(WrongShape(), trials, 2, progress=False)
+    with pytest.raises(ValueError, match="NaN"):
+        evaluate(NotFinite(), trials, 2, progress=False)
+    with pytest.raises(TypeError, match="sample_goals"):
+        evaluate(object(), trials, 2, progress=False)
+    with pytest.raises(ValueError, match="object_points do not belong"):
+        OraclePredictor(_trials("insert_ssd", 1, first_seed=5)).sample_goals(
+            torch.from_numpy(trials[0].object_points)[None], torch.from_numpy(trials[0].scene_points)[None], 1
+        )
+    assert isinstance(OraclePredictor(trials), GoalPredictor)
+
+
+def test_command_line_eval_writes_the_report(tmp_path):
+    result = run_cli(
+        "python", "-m", "lerobot_taxdpd.sim", "eval", "--task", "insert_dsub25", "--predictor", "oracle",
+        "--trials", "2", "--num-samples", "2", "--figures", "1", "--output", str(tmp_path),
+    )
+    assert "insert_dsub25: success 100.0%" in result.stdout
+    report = json.loads((tmp_path / "insert_dsub25_eval.json").read_text())
+    assert report["predictor"] == "oracle" and report["split"] == "test" and report["trials"] == 2
+    assert (tmp_path / "figures" / "insert_dsub25_seed0_samples.png").exists()
+
+
+def test_command_line_errors_name_the_argument(tmp_path, capsys):
+    assert main(["eval", "--task", "insert_ssd", "--predictor", "no_colon_here", "--trials", "1", "--output", str(tmp_path)]) == 1
+    assert "--predictor" in capsys.readouterr().err
+    assert main(["eval", "--task", "insert_ssd", "--predictor", "oracle", "--trials", "0", "--output", str(tmp_path)]) == 1
+    assert "--trials" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["eval", "--task", "no_such_task", "--predictor", "oracle"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_cloth_hang_is_handed_to_the_cloth_command_line(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", "--task", "cloth_hang", "--help"])
+    assert exit_info.value.code == 0
+    assert "--goal-policy.path" in capsys.readouterr().out  # an option only the cloth task has
