@@ -65,16 +65,24 @@ def main() -> int:
     parser.add_argument("--error", nargs=2, type=float, metavar=("MM", "DEG"), help="one error size for every task")
     args = parser.parse_args()
     error = (args.error[0] / 1000, args.error[1]) if args.error else None
-    config = {"trials": args.trials, "seed": args.seed, "split": "test", "samples executed": 1, "error": args.error or "per task"}
+    config = {
+        "trials": args.trials,
+        "seed": args.seed,
+        "split": "test",
+        "samples executed": 1,
+        "error": args.error or "per task",
+    }
     print(f"machine: {json.dumps(machine_info())}\nconfig: {json.dumps(config)}")
-    print(f"{'task':26s} {'GT success':>12s} {'perturbation':>16s} {'failure':>8s} {'transl. only':>12s} {'rot. only':>10s}")
+    header = ("task", "GT success", "perturbation", "failure", "transl. only", "rot. only")
+    print("{:26s} {:>12s} {:>16s} {:>8s} {:>12s} {:>10s}".format(*header))
     results = {}
     for name in args.tasks:
         r = results[name] = calibrate(name, args.trials, args.seed, error)
         p = r["perturbed"]
+        error_size = f"{p['translation_mm']:.0f} mm {p['rotation_deg']:.0f} deg"
         print(
-            f"{name:26s} {r['ground_truth']['success_rate']:>12.1%} {p['translation_mm']:>7.0f} mm {p['rotation_deg']:>3.0f} deg"
-            f" {p['failure_rate']:>8.1%} {r['translation_only']['failure_rate']:>12.1%} {r['rotation_only']['failure_rate']:>10.1%}",
+            f"{name:26s} {r['ground_truth']['success_rate']:>12.1%} {error_size:>16s} {p['failure_rate']:>8.1%} "
+            f"{r['translation_only']['failure_rate']:>12.1%} {r['rotation_only']['failure_rate']:>10.1%}",
             flush=True,
         )
     payload = {

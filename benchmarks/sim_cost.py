@@ -58,7 +58,12 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, default=Path("results/sim_cost.json"))
     args = parser.parse_args()
-    config = {"trials per task": args.trials, "seed": args.seed, "renderer": "pybullet TinyRenderer", "statistic": "median"}
+    config = {
+        "trials per task": args.trials,
+        "seed": args.seed,
+        "renderer": "pybullet TinyRenderer",
+        "statistic": "median",
+    }
     print(f"machine: {json.dumps(machine_info())}\nconfig: {json.dumps(config)}")
     print(f"{'task':26s} {'observe s':>10s} {'place s':>9s} {'trial s':>9s} {'100 trials':>11s} {'episode s':>10s}")
     results = {}
@@ -66,10 +71,16 @@ def main() -> int:
         r = results[name] = measure(name, args.trials, args.seed)
         print(
             f"{name:26s} {r['scene_and_observation_s']:>10.3f} {r['placement_and_checks_s']:>9.3f} "
-            f"{r['seconds_per_trial']:>9.3f} {r['minutes_per_100_trials']:>7.1f} min {r['dataset_episode_2_frames_s']:>10.3f}",
+            f"{r['seconds_per_trial']:>9.3f} {r['minutes_per_100_trials']:>7.1f} min "
+            f"{r['dataset_episode_2_frames_s']:>10.3f}",
             flush=True,
         )
-    payload = {"command": shlex.join(["python", *sys.argv]), "machine": machine_info(), "config": config, "tasks": results}
+    payload = {
+        "command": shlex.join(["python", *sys.argv]),
+        "machine": machine_info(),
+        "config": config,
+        "tasks": results,
+    }
     print(f"wrote {write_report(payload, args.output)}")
     return 0
 

@@ -170,13 +170,17 @@ def matrix_to_quaternion_xyzw(rotation: ArrayLike):
     """
     r_in, was_numpy = _as_tensor(rotation)
     r = r_in.double()
-    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+
+    def e(i: int, j: int) -> Tensor:
+        return r[..., i, j]
+
+    m00, m11, m22 = e(0, 0), e(1, 1), e(2, 2)
     candidates = torch.stack(
         [
-            torch.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1], 1 + m00 + m11 + m22], -1),
-            torch.stack([1 + m00 - m11 - m22, r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 2, 1] - r[..., 1, 2]], -1),
-            torch.stack([r[..., 0, 1] + r[..., 1, 0], 1 - m00 + m11 - m22, r[..., 1, 2] + r[..., 2, 1], r[..., 0, 2] - r[..., 2, 0]], -1),
-            torch.stack([r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1], 1 - m00 - m11 + m22, r[..., 1, 0] - r[..., 0, 1]], -1),
+            torch.stack([e(2, 1) - e(1, 2), e(0, 2) - e(2, 0), e(1, 0) - e(0, 1), 1 + m00 + m11 + m22], -1),
+            torch.stack([1 + m00 - m11 - m22, e(0, 1) + e(1, 0), e(0, 2) + e(2, 0), e(2, 1) - e(1, 2)], -1),
+            torch.stack([e(0, 1) + e(1, 0), 1 - m00 + m11 - m22, e(1, 2) + e(2, 1), e(0, 2) - e(2, 0)], -1),
+            torch.stack([e(0, 2) + e(2, 0), e(1, 2) + e(2, 1), 1 - m00 - m11 + m22, e(1, 0) - e(0, 1)], -1),
         ],
         -2,
     )  # (..., 4, 4): row k is 4*q_k times q, for k = w, x, y, z

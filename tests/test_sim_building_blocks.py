@@ -22,7 +22,17 @@ from lerobot_taxdpd.sim.splits import SPLIT_MARGIN
 from lerobot_taxdpd.sim.success import upside_down_test
 from lerobot_taxdpd.sim.world import add_table, physics_world
 
-SPACES = [MUG_SPACE, RACK_SPACE, BOOK_SPACE, SHELF_SPACE, CAN_SPACE, CABINET_SPACE, WATERPROOF_SPACE, DSUB_SPACE, SSD_SPACE]
+SPACES = [
+    MUG_SPACE,
+    RACK_SPACE,
+    BOOK_SPACE,
+    SHELF_SPACE,
+    CAN_SPACE,
+    CABINET_SPACE,
+    WATERPROOF_SPACE,
+    DSUB_SPACE,
+    SSD_SPACE,
+]
 
 
 @pytest.mark.parametrize("space", SPACES, ids=lambda s: s.name)
@@ -80,7 +90,9 @@ def test_bodies_collide_exactly_at_clearance_scale():
         assert min(p[8] for p in hits) == pytest.approx(-0.0017, abs=1e-6)
         outline = np.array([[-0.01, -0.004], [0.01, -0.004], [0.008, 0.004], [-0.008, 0.004]])
         plug = create_body(client, [prism(outline, 0.0, 0.01), cylinder(0.012, 0.01, position=(0, 0, 0.02))], mass=0.02)
-        pb.resetBasePositionAndOrientation(plug, (0.002 + 0.01 + 0.0003, 0.0, -0.005), (0, 0, 0, 1), physicsClientId=client)
+        pb.resetBasePositionAndOrientation(
+            plug, (0.002 + 0.01 + 0.0003, 0.0, -0.005), (0, 0, 0, 1), physicsClientId=client
+        )
         distances = [p[8] for p in pb.getClosestPoints(plug, wall, 0.005, linkIndexA=-1, physicsClientId=client)]
         assert min(distances) == pytest.approx(0.0003, abs=2e-6)
 
@@ -118,13 +130,29 @@ def test_controller_stops_at_the_first_contact_and_refuses_to_start_inside_an_ob
         cube = create_body(client, [box((0.01, 0.01, 0.01))], mass=0.1)
         goal = transform(translation=(0.0, 0.0, 0.2))  # inside the wall
         result = sweep_to_goal(
-            client, cube, goal, np.array([1.0, 0.0, 0.0]), 0.1, [wall], coarse_step=0.005, fine_step=0.0002, tolerance=0.0001
+            client,
+            cube,
+            goal,
+            np.array([1.0, 0.0, 0.0]),
+            0.1,
+            [wall],
+            coarse_step=0.005,
+            fine_step=0.0002,
+            tolerance=0.0001,
         )
         assert not result.reached_goal and result.started
         assert result.pose[0, 3] == pytest.approx(-0.02, abs=0.0003)  # faces touching, within one fine step
         assert penetration(client, cube, [wall]) <= 0.0001
         deep = sweep_to_goal(
-            client, cube, goal, np.array([1.0, 0.0, 0.0]), 0.005, [wall], coarse_step=0.005, fine_step=0.0002, tolerance=0.0001
+            client,
+            cube,
+            goal,
+            np.array([1.0, 0.0, 0.0]),
+            0.005,
+            [wall],
+            coarse_step=0.005,
+            fine_step=0.0002,
+            tolerance=0.0001,
         )
         assert not deep.started
 
@@ -135,7 +163,11 @@ def test_upside_down_test_frees_resting_objects_and_rejects_wedged_ones():
             table = add_table(client)
             holder = create_body(
                 client,
-                [box((0.05, 0.05, 0.005), (0, 0, 0.005)), box((0.005, 0.05, 0.04), (-0.025, 0, 0.05)), box((0.005, 0.05, 0.04), (0.025, 0, 0.05))],
+                [
+                    box((0.05, 0.05, 0.005), (0, 0, 0.005)),
+                    box((0.005, 0.05, 0.04), (-0.025, 0, 0.05)),
+                    box((0.005, 0.05, 0.04), (0.025, 0, 0.05)),
+                ],
             )
             block = create_body(client, [box((0.02 + overlap, 0.02, 0.02))], mass=0.2, position=(0.0, 0.0, 0.0301))
             return upside_down_test(client, block, [holder], table)

@@ -24,8 +24,22 @@ def _frames(root, repo_id):
 def test_generated_demos_round_trip_through_lerobot(tmp_path):
     root = tmp_path / "waterproof"
     run_cli(
-        "python", "-m", "lerobot_taxdpd.sim", "generate", "--task", "insert_waterproof", "--episodes", "2",
-        "--split", "train", "--repo-id", "local/waterproof", "--root", str(root), "--seed", "7",
+        "python",
+        "-m",
+        "lerobot_taxdpd.sim",
+        "generate",
+        "--task",
+        "insert_waterproof",
+        "--episodes",
+        "2",
+        "--split",
+        "train",
+        "--repo-id",
+        "local/waterproof",
+        "--root",
+        str(root),
+        "--seed",
+        "7",
     )
     dataset, frames = _frames(root, "local/waterproof")
     num_object, num_scene = DEFAULT_POINT_COUNTS["nist"]
@@ -46,8 +60,13 @@ def test_generated_demos_round_trip_through_lerobot(tmp_path):
 
     # Same seed, same data: the dataset is reproducible.
     again = generate_dataset(
-        get_task("insert_waterproof"), episodes=2, split="train", repo_id="local/again", root=tmp_path / "again",
-        seed=7, progress=False,
+        get_task("insert_waterproof"),
+        episodes=2,
+        split="train",
+        repo_id="local/again",
+        root=tmp_path / "again",
+        seed=7,
+        progress=False,
     )
     _, frames_again = _frames(again, "local/again")
     for a, b in zip(frames, frames_again):
@@ -64,7 +83,9 @@ def test_an_existing_dataset_is_never_clobbered_and_bad_arguments_are_named(tmp_
     assert "already exists" in capsys.readouterr().err
     assert (root / "keep.txt").read_text() == "precious" and len(list(root.iterdir())) == 1
     with pytest.raises(ValueError, match="--frames-per-episode"):
-        generate_dataset(get_task("insert_ssd"), episodes=1, split="train", repo_id="x/y", root=tmp_path / "a", frames_per_episode=1)
+        generate_dataset(
+            get_task("insert_ssd"), episodes=1, split="train", repo_id="x/y", root=tmp_path / "a", frames_per_episode=1
+        )
     with pytest.raises(ValueError, match="--episodes"):
         generate_dataset(get_task("insert_ssd"), episodes=0, split="train", repo_id="x/y", root=tmp_path / "b")
     with pytest.raises(ValueError, match="split"):

@@ -36,7 +36,7 @@ class OracleWithGMM(OraclePredictor):
         cloud = object_points[0].numpy()
         centre = next(c for o, c in self._by_cloud if np.array_equal(o, cloud))
         distance = (scene_points[0] - torch.from_numpy(centre)).norm(dim=-1)
-        weights = torch.softmax(-(distance / 0.03) ** 2, dim=0)
+        weights = torch.softmax(-((distance / 0.03) ** 2), dim=0)
         return weights[None], scene_points.clone()
 
 
@@ -51,7 +51,12 @@ def test_ground_truth_succeeds_covers_every_mode_and_draws_figures(tmp_path):
     assert report["coverage@4"] == 1.0 and report["precision@4"] == 1.0
     assert {r["num_modes"] for r in report["per_trial"]} == {2}
     names = sorted(p.name for p in tmp_path.iterdir())
-    assert names == ["mug_medrack_seed0_gmm.png", "mug_medrack_seed0_samples.png", "mug_medrack_seed1_gmm.png", "mug_medrack_seed1_samples.png"]
+    assert names == [
+        "mug_medrack_seed0_gmm.png",
+        "mug_medrack_seed0_samples.png",
+        "mug_medrack_seed1_gmm.png",
+        "mug_medrack_seed1_samples.png",
+    ]
     assert all(p.read_bytes().startswith(PNG_SIGNATURE) for p in tmp_path.iterdir())
     path = write_report(report, tmp_path / "out" / "report.json")
     assert json.loads(path.read_text())["success"] == report["success"]
@@ -82,7 +87,9 @@ def test_the_harness_rejects_what_is_not_a_goal_predictor():
         def sample_goals(self, object_points, scene_points, num_samples):
             return torch.full((1, num_samples, *object_points.shape[1:]), float("nan"))
 
-    with pytest.raises(ValueError, match=r"WrongShape.sample_goals returned shape \(1, 2, 7, 3\), expected \(1, 2, 512, 3\)"):
+    with pytest.raises(
+        ValueError, match=r"WrongShape.sample_goals returned shape \(1, 2, 7, 3\), expected \(1, 2, 512, 3\)"
+    ):
         evaluate(WrongShape(), trials, 2, progress=False)
     with pytest.raises(ValueError, match="NaN"):
         evaluate(NotFinite(), trials, 2, progress=False)
@@ -97,8 +104,22 @@ def test_the_harness_rejects_what_is_not_a_goal_predictor():
 
 def test_command_line_eval_writes_the_report(tmp_path):
     result = run_cli(
-        "python", "-m", "lerobot_taxdpd.sim", "eval", "--task", "insert_dsub25", "--predictor", "oracle",
-        "--trials", "2", "--num-samples", "2", "--figures", "1", "--output", str(tmp_path),
+        "python",
+        "-m",
+        "lerobot_taxdpd.sim",
+        "eval",
+        "--task",
+        "insert_dsub25",
+        "--predictor",
+        "oracle",
+        "--trials",
+        "2",
+        "--num-samples",
+        "2",
+        "--figures",
+        "1",
+        "--output",
+        str(tmp_path),
     )
     assert "insert_dsub25: success 100.0%" in result.stdout
     report = json.loads((tmp_path / "insert_dsub25_eval.json").read_text())
@@ -107,10 +128,25 @@ def test_command_line_eval_writes_the_report(tmp_path):
 
 
 def test_command_line_errors_name_the_argument(tmp_path, capsys):
-    assert main(["eval", "--task", "insert_ssd", "--predictor", "no_colon_here", "--trials", "1", "--output", str(tmp_path)]) == 1
+    assert (
+        main(
+            ["eval", "--task", "insert_ssd", "--predictor", "no_colon_here", "--trials", "1", "--output", str(tmp_path)]
+        )
+        == 1
+    )
     assert "--predictor" in capsys.readouterr().err
-    assert main(["eval", "--task", "insert_ssd", "--predictor", "oracle", "--trials", "0", "--output", str(tmp_path)]) == 1
+    assert (
+        main(["eval", "--task", "insert_ssd", "--predictor", "oracle", "--trials", "0", "--output", str(tmp_path)]) == 1
+    )
     assert "--trials" in capsys.readouterr().err
+    missing = tmp_path / "no_checkpoint_here"
+    assert (
+        main(
+            ["eval", "--task", "insert_ssd", "--policy.path", str(missing), "--trials", "1", "--output", str(tmp_path)]
+        )
+        == 1
+    )
+    assert f"--policy.path {missing}: not a loadable TAX-DPD checkpoint" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["eval", "--task", "no_such_task", "--predictor", "oracle"])
     assert "invalid choice" in capsys.readouterr().err

@@ -108,8 +108,14 @@ def test_lerobot_eval_runs_a_taxdpd_checkpoint_on_a_benchmark(tmp_path):
         pipeline.save_pretrained(checkpoint)
     output = tmp_path / "eval"
     run_cli(
-        "lerobot-eval", f"--policy.path={checkpoint}", "--env.type=taxdpd_sim", "--env.task=insert_ssd",
-        "--eval.n_episodes=1", "--eval.batch_size=1", "--policy.device=cpu", f"--output_dir={output}",
+        "lerobot-eval",
+        f"--policy.path={checkpoint}",
+        "--env.type=taxdpd_sim",
+        "--env.task=insert_ssd",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        "--policy.device=cpu",
+        f"--output_dir={output}",
     )
     info = json.loads((output / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1

@@ -40,7 +40,9 @@ def test_task_observes_demonstrates_and_its_ground_truth_succeeds(name):
         assert np.linalg.norm(trial.object_points.mean(0) - start) < 0.1
         assert len(trial.modes) >= 1 and (len(trial.modes) > 1 or not task.multi_modal or name == "mug_easyrack")
         # The controller's pose, fitted to the clouds by RANSAC-SVD, reproduces the demonstration.
-        fitted, _ = estimate_rigid_transform(trial.object_points.astype(np.float64), trial.goal_points().astype(np.float64))
+        fitted, _ = estimate_rigid_transform(
+            trial.object_points.astype(np.float64), trial.goal_points().astype(np.float64)
+        )
         np.testing.assert_allclose(fitted, trial.goal_transform, atol=1e-4)
         outcome = execute(trial, fitted)
         assert outcome.success, f"{name} seed {seed}: ground truth failed: {outcome.reason}"
@@ -96,7 +98,12 @@ def test_views_of_one_demo_differ_but_share_the_goal_transform():
     assert len(trial.views) == 3
     assert not np.allclose(trial.views[0].object_points, trial.views[1].object_points)
     for view in range(3):
-        placement_frame(trial.views[view].object_points, trial.views[view].scene_points, trial.goal_points(view), trial.goal_transform)
+        placement_frame(
+            trial.views[view].object_points,
+            trial.views[view].scene_points,
+            trial.goal_points(view),
+            trial.goal_transform,
+        )
 
 
 def test_insertion_grasp_varies_like_the_papers_data():

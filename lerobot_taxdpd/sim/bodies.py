@@ -75,7 +75,9 @@ class Part:
         return np.vstack([low, high])
 
 
-def box(half_extents: Sequence[float], position=(0.0, 0.0, 0.0), orientation=IDENTITY_QUAT, collides: bool = True) -> Part:
+def box(
+    half_extents: Sequence[float], position=(0.0, 0.0, 0.0), orientation=IDENTITY_QUAT, collides: bool = True
+) -> Part:
     return Part("box", tuple(float(h) for h in half_extents), _vec(position), _quat(orientation), collides=collides)
 
 
@@ -85,7 +87,9 @@ def cylinder(
     return Part("cylinder", (float(radius), float(length)), _vec(position), _quat(orientation), collides=collides)
 
 
-def prism(outline_xy: np.ndarray, z_low: float, z_high: float, position=(0.0, 0.0, 0.0), orientation=IDENTITY_QUAT) -> Part:
+def prism(
+    outline_xy: np.ndarray, z_low: float, z_high: float, position=(0.0, 0.0, 0.0), orientation=IDENTITY_QUAT
+) -> Part:
     """A convex polygon (counter-clockwise) extruded from `z_low` to `z_high`."""
     xy = np.asarray(outline_xy, dtype=np.float64)
     area, _ = _polygon_area_centroid(xy)
@@ -135,7 +139,9 @@ def place_parts(parts: Sequence[Part], pose: np.ndarray) -> list[Part]:
     for p in parts:
         local = np.asarray(pb.getMatrixFromQuaternion(p.orientation)).reshape(3, 3)
         orientation = matrix_to_quaternion_xyzw(rotation @ local)
-        placed.append(replace(p, position=_vec(rotation @ np.asarray(p.position) + pose[:3, 3]), orientation=_quat(orientation)))
+        placed.append(
+            replace(p, position=_vec(rotation @ np.asarray(p.position) + pose[:3, 3]), orientation=_quat(orientation))
+        )
     return placed
 
 
@@ -154,12 +160,19 @@ def _prism_triangles(m: int) -> list[int]:
 def _prism_shapes(client: int, part: Part) -> tuple[int, int]:
     verts = part.prism_vertices().tolist()
     collision = pb.createCollisionShape(
-        pb.GEOM_MESH, vertices=verts, collisionFramePosition=list(part.position),
-        collisionFrameOrientation=list(part.orientation), physicsClientId=client,
+        pb.GEOM_MESH,
+        vertices=verts,
+        collisionFramePosition=list(part.position),
+        collisionFrameOrientation=list(part.orientation),
+        physicsClientId=client,
     )
     visual = pb.createVisualShape(
-        pb.GEOM_MESH, vertices=verts, indices=_prism_triangles(len(part.outline)),
-        visualFramePosition=list(part.position), visualFrameOrientation=list(part.orientation), physicsClientId=client,
+        pb.GEOM_MESH,
+        vertices=verts,
+        indices=_prism_triangles(len(part.outline)),
+        visualFramePosition=list(part.position),
+        visualFrameOrientation=list(part.orientation),
+        physicsClientId=client,
     )
     return collision, visual
 
@@ -175,7 +188,9 @@ def _compound_shapes(client: int, group: Sequence[Part]) -> tuple[int, int]:
     )
     positions = [list(p.position) for p in group]
     orientations = [list(p.orientation) for p in group]
-    visual = pb.createVisualShapeArray(kinds, visualFramePositions=positions, visualFrameOrientations=orientations, **shape)
+    visual = pb.createVisualShapeArray(
+        kinds, visualFramePositions=positions, visualFrameOrientations=orientations, **shape
+    )
     if not group[0].collides:
         return -1, visual
     collision = pb.createCollisionShapeArray(

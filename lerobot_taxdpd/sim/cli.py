@@ -69,8 +69,14 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
     from lerobot_taxdpd.sim.tasks import get_task
 
     root = generate_dataset(
-        get_task(args.task), episodes=args.episodes, split=args.split, repo_id=args.repo_id, root=args.root,
-        seed=args.seed, frames_per_episode=args.frames_per_episode, overwrite=args.overwrite,
+        get_task(args.task),
+        episodes=args.episodes,
+        split=args.split,
+        repo_id=args.repo_id,
+        root=args.root,
+        seed=args.seed,
+        frames_per_episode=args.frames_per_episode,
+        overwrite=args.overwrite,
         command="python -m lerobot_taxdpd.sim " + shlex.join(argv),
     )
     print(f"wrote {args.episodes} {args.task} demonstrations ({args.split} geometry) to {root}")
@@ -93,11 +99,23 @@ def _evaluate(args: argparse.Namespace) -> int:
     if oracle:
         trials = [make_trial(task, seed, args.split) for seed in seeds]
         predictor = OraclePredictor(trials, args.oracle_error_mm / 1000, args.oracle_error_deg, seed=args.seed)
+    elif args.policy_path:
+        try:
+            predictor = load_policy(args.policy_path)
+        except (OSError, ValueError) as error:
+            raise ValueError(
+                f"--policy.path {args.policy_path}: not a loadable TAX-DPD checkpoint ({error})"
+            ) from error
     else:
-        predictor = load_policy(args.policy_path) if args.policy_path else load_predictor(args.predictor)
+        predictor = load_predictor(args.predictor)
+    if not oracle:
         trials = (make_trial(task, seed, args.split) for seed in seeds)
     report = evaluate(
-        predictor, trials, args.num_samples, figures_dir=args.output / "figures", num_figures=args.figures,
+        predictor,
+        trials,
+        args.num_samples,
+        figures_dir=args.output / "figures",
+        num_figures=args.figures,
         total=args.trials,
     )
     report["predictor"] = args.policy_path or args.predictor

@@ -32,7 +32,9 @@ TASK_POINT_COUNTS = {
 for _task in TASK_POINT_COUNTS:
     _id = f"{GYM_NAMESPACE}/{_task}-v0"
     if _id not in gym.registry:
-        gym.register(id=_id, entry_point="lerobot_taxdpd.sim.gym_env:PlacementEnv", kwargs={"task": _task}, max_episode_steps=1)
+        gym.register(
+            id=_id, entry_point="lerobot_taxdpd.sim.gym_env:PlacementEnv", kwargs={"task": _task}, max_episode_steps=1
+        )
 
 
 @EnvConfig.register_subclass("taxdpd_sim")
@@ -44,9 +46,7 @@ class TaxDPDSimEnvConfig(EnvConfig):
     fps: int = 1
     split: str = "test"
     features: dict[str, PolicyFeature] = field(default_factory=dict)
-    features_map: dict[str, str] = field(
-        default_factory=lambda: {ACTION: ACTION, "environment_state": OBS_ENV_STATE}
-    )
+    features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "environment_state": OBS_ENV_STATE})
 
     def __post_init__(self) -> None:
         if self.task not in TASK_POINT_COUNTS:

@@ -61,7 +61,14 @@ def plot_weight_map(trial: Trial, weights: np.ndarray, means: np.ndarray, path: 
     goal_centre = trial.goal_points().mean(0)
     for i, (elevation, azimuth) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
-        points = ax.scatter(*trial.scene_points[order].T, s=3, c=log_weights[order], cmap="viridis")
+        points = ax.scatter(
+            *trial.scene_points[order].T,
+            s=3,
+            c=log_weights[order],
+            cmap="viridis",
+            vmin=log_weights.min(),
+            vmax=max(log_weights.max(), log_weights.min() + 1e-3),
+        )
         top = np.argsort(weights)[-10:]
         ax.scatter(*means[top].T, s=12, c="tab:red", marker="x", label="means of the 10 heaviest components")
         ax.scatter(*goal_centre, s=80, c="tab:green", marker="*", label="ground-truth goal centroid")

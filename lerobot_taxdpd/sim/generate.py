@@ -37,7 +37,10 @@ def generate_dataset(
     if episodes < 1:
         raise ValueError(f"--episodes: must be at least 1, got {episodes}")
     if frames_per_episode < 2:
-        raise ValueError(f"--frames-per-episode: must be at least 2 (LeRobot 0.4.4 breaks on one-frame episodes), got {frames_per_episode}")
+        raise ValueError(
+            "--frames-per-episode: must be at least 2 (LeRobot 0.4.4 breaks on one-frame episodes), "
+            f"got {frames_per_episode}"
+        )
     num_object, num_scene = task.num_points
     card = DatasetCardInfo(
         source=f"lerobot_taxdpd procedural {task.name} task (pybullet), scripted demonstrator",
@@ -50,7 +53,12 @@ def generate_dataset(
         ),
         hub_license="apache-2.0",
         tags=["pybullet", "simulation", task.name],
-        details={"task": task.name, "geometry split": split, "scene seeds": f"{seed}..{seed + episodes - 1}", "frames per episode": str(frames_per_episode)},
+        details={
+            "task": task.name,
+            "geometry split": split,
+            "scene seeds": f"{seed}..{seed + episodes - 1}",
+            "frames per episode": str(frames_per_episode),
+        },
     )
     features = goal_prediction_features(num_object, num_scene, with_transform=True)
     with DatasetWriter(repo_id, root, features, fps=GOAL_DATASET_FPS, card=card, overwrite=overwrite) as writer:
@@ -58,7 +66,10 @@ def generate_dataset(
             trial = make_trial(task, seed + episode, split, num_views=frames_per_episode)
             frames = [
                 placement_frame(
-                    view.object_points, view.scene_points, trial.goal_points(i), trial.goal_transform,
+                    view.object_points,
+                    view.scene_points,
+                    trial.goal_points(i),
+                    trial.goal_transform,
                     source=f"{task.name} seed {trial.seed} view {i}",
                 )
                 for i, view in enumerate(trial.views)

@@ -65,7 +65,8 @@ class PlacementEnv(gym.Env):
         goal = np.asarray(action, dtype=np.float64)
         if goal.size != object_points.size:
             raise ValueError(
-                f"action: expected the goal cloud, {object_points.shape} or {object_points.size} values, got shape {goal.shape}"
+                f"action: expected the goal cloud, {object_points.shape} or {object_points.size} values, "
+                f"got shape {goal.shape}"
             )
         goal = goal.reshape(object_points.shape)
         if not np.isfinite(goal).all():

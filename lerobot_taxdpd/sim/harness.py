@@ -36,6 +36,7 @@ from lerobot_taxdpd.sim.figures import plot_goal_samples, plot_weight_map
 from lerobot_taxdpd.sim.predictors import GoalPredictor
 from lerobot_taxdpd.sim.trials import Trial, execute
 
+
 def _sample(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
     """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked."""
     object_points = torch.from_numpy(trial.object_points)[None]
@@ -74,10 +75,14 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
         "rotation_error_deg": float(rotation_error_deg(executed, reference)),
         "rmse_mm": float(point_rmse(executed, reference)) * 1000,
         "winner_take_all_rmse_mm": float(rmse.min()) * 1000,
-        "nearest_goal_mode": trial.modes[int(np.searchsorted(np.cumsum([len(g) for g in goals]), nearest, side="right"))].label,
+        "nearest_goal_mode": trial.modes[
+            int(np.searchsorted(np.cumsum([len(g) for g in goals]), nearest, side="right"))
+        ].label,
     }
     if trial.gripper_pose is not None:
-        translation, rotation = transform_errors(transform @ trial.gripper_pose, flat_transforms[nearest] @ trial.gripper_pose)
+        translation, rotation = transform_errors(
+            transform @ trial.gripper_pose, flat_transforms[nearest] @ trial.gripper_pose
+        )
         record["gripper_translation_error_mm"] = float(translation) * 1000
         record["gripper_rotation_error_deg"] = float(rotation)
     if trial.task.multi_modal:
@@ -115,20 +120,36 @@ def evaluate(
         predict_seconds = time.perf_counter() - tick
         transform, _ = estimate_rigid_transform(trial.object_points.astype(np.float64), samples[0])
         outcome = execute(trial, transform)
-        record = {"seed": trial.seed, "success": outcome.success, "failure": outcome.reason, "reached_goal": outcome.reached_goal}
+        record = {
+            "seed": trial.seed,
+            "success": outcome.success,
+            "failure": outcome.reason,
+            "reached_goal": outcome.reached_goal,
+        }
         record.update(score_trial(trial, samples, transform))
         record["predict_seconds"] = predict_seconds
         record["seconds"] = time.perf_counter() - tick
         records.append(record)
         if figures_dir is not None and index < num_figures:
-            figures.append(str(plot_goal_samples(trial, samples, figures_dir / f"{task.name}_seed{trial.seed}_samples.png", success=outcome.success)))
+            figures.append(
+                str(
+                    plot_goal_samples(
+                        trial,
+                        samples,
+                        figures_dir / f"{task.name}_seed{trial.seed}_samples.png",
+                        success=outcome.success,
+                    )
+                )
+            )
             if hasattr(predictor, "placement_distribution"):
                 with torch.inference_mode():
                     weights, means = predictor.placement_distribution(
                         torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]
                     )
                 path = figures_dir / f"{task.name}_seed{trial.seed}_gmm.png"
-                figures.append(str(plot_weight_map(trial, np.asarray(weights[0].cpu()), np.asarray(means[0].cpu()), path)))
+                figures.append(
+                    str(plot_weight_map(trial, np.asarray(weights[0].cpu()), np.asarray(means[0].cpu()), path))
+                )
     if not records:
         raise ValueError("no trials to evaluate")
     return _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)

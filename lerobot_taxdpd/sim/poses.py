@@ -21,9 +21,7 @@ def body_pose(client: int, body: int) -> np.ndarray:
 def set_body_pose(client: int, body: int, pose: np.ndarray) -> None:
     """Teleport a body (zero velocity), as the placement controller does."""
     quaternion = matrix_to_quaternion_xyzw(np.asarray(pose[:3, :3], dtype=np.float64))
-    pb.resetBasePositionAndOrientation(
-        body, pose[:3, 3].tolist(), quaternion.tolist(), physicsClientId=client
-    )
+    pb.resetBasePositionAndOrientation(body, pose[:3, 3].tolist(), quaternion.tolist(), physicsClientId=client)
     pb.resetBaseVelocity(body, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=client)
 
 

@@ -100,8 +100,15 @@ def _reachable(task: PlacementTask, client: int, built: BuiltScene, scene: Any, 
     if penetration(client, built.object_id, built.obstacles) > 0.0:
         return False
     sweep = sweep_to_goal(
-        client, built.object_id, pose, task.approach_direction(scene, pose), task.approach_distance,
-        built.obstacles, coarse_step=task.coarse_step, fine_step=task.fine_step, tolerance=0.0,
+        client,
+        built.object_id,
+        pose,
+        task.approach_direction(scene, pose),
+        task.approach_distance,
+        built.obstacles,
+        coarse_step=task.coarse_step,
+        fine_step=task.fine_step,
+        tolerance=0.0,
     )
     return sweep.reached_goal
 
@@ -156,8 +163,14 @@ def make_trial(task: PlacementTask, seed: int, split: str = "test", num_views: i
         mode = modes[int(rng.integers(len(modes)))]
         goal = min(mode.poses, key=lambda pose: rotation_angle_deg(pose[:3, :3] @ start[:3, :3].T))
         return Trial(
-            task=task, seed=int(seed), split=split, scene=scene, start_pose=start,
-            goal_transform=goal @ np.linalg.inv(start), modes=tuple(modes), views=tuple(views),
+            task=task,
+            seed=int(seed),
+            split=split,
+            scene=scene,
+            start_pose=start,
+            goal_transform=goal @ np.linalg.inv(start),
+            modes=tuple(modes),
+            views=tuple(views),
             gripper_pose=task.gripper_start_pose(scene),
         )
     raise RuntimeError(f"{task.name}: no feasible scene in {MAX_SCENE_ATTEMPTS} attempts for seed {seed} ({split})")
@@ -173,8 +186,14 @@ def execute(trial: Trial, transform: np.ndarray) -> Outcome:
     with physics_world() as client:
         built = task.build(client, scene)
         sweep = sweep_to_goal(
-            client, built.object_id, goal_pose, task.approach_direction(scene, goal_pose), task.approach_distance,
-            built.obstacles, coarse_step=task.coarse_step, fine_step=task.fine_step,
+            client,
+            built.object_id,
+            goal_pose,
+            task.approach_direction(scene, goal_pose),
+            task.approach_distance,
+            built.obstacles,
+            coarse_step=task.coarse_step,
+            fine_step=task.fine_step,
             tolerance=task.penetration_tolerance,
         )
         if not sweep.started:

@@ -110,6 +110,12 @@ def cabinet_design(params: dict[str, float], can: dict[str, float], rng: np.rand
         else:
             supports.append(Support(f"shelf spot {spot}", centre, None))
     return CabinetDesign(
-        dict(params), tuple(parts), tuple(stacks), tuple(shelf_cans), tuple(supports),
-        upper_floor, (x_low, x_high), (-d / 2, d / 2 - t),
+        dict(params),
+        tuple(parts),
+        tuple(stacks),
+        tuple(shelf_cans),
+        tuple(supports),
+        upper_floor,
+        (x_low, x_high),
+        (-d / 2, d / 2 - t),
     )

@@ -32,7 +32,13 @@ PIN_LENGTH = 0.0012
 
 WATERPROOF_SPACE = ParameterSpace(
     name="waterproof",
-    ranges={"radius": (0.007, 0.011), "flat": (0.60, 0.80), "insert": (0.008, 0.012), "body_extra": (0.002, 0.004), "body": (0.014, 0.022)},
+    ranges={
+        "radius": (0.007, 0.011),
+        "flat": (0.60, 0.80),
+        "insert": (0.008, 0.012),
+        "body_extra": (0.002, 0.004),
+        "body": (0.014, 0.022),
+    },
     keys=("radius", "flat"),
 )
 DSUB_SPACE = ParameterSpace(
@@ -42,7 +48,13 @@ DSUB_SPACE = ParameterSpace(
 )
 SSD_SPACE = ParameterSpace(
     name="ssd",
-    ranges={"width": (0.022, 0.030), "thickness": (0.0030, 0.0045), "height": (0.055, 0.080), "notch": (0.20, 0.35), "insert": (0.004, 0.006)},
+    ranges={
+        "width": (0.022, 0.030),
+        "thickness": (0.0030, 0.0045),
+        "height": (0.055, 0.080),
+        "notch": (0.20, 0.35),
+        "insert": (0.004, 0.006),
+    },
     keys=("width", "height"),
 )
 SPACES = {"waterproof": WATERPROOF_SPACE, "dsub25": DSUB_SPACE, "ssd": SSD_SPACE}
@@ -94,7 +106,9 @@ def cavity_parts(outline: np.ndarray, depth: float) -> list[Part]:
         outward = np.array([edge[1], -edge[0]]) / length
         centre = (a + b) / 2 + outward * WALL / 2
         angle = np.arctan2(edge[1], edge[0])
-        parts.append(box((length / 2 + WALL, WALL / 2, depth / 2), (centre[0], centre[1], -depth / 2), quaternion(rot_z(angle))))
+        parts.append(
+            box((length / 2 + WALL, WALL / 2, depth / 2), (centre[0], centre[1], -depth / 2), quaternion(rot_z(angle)))
+        )
     reach = float(np.abs(outline).max()) + 2 * WALL
     parts.append(box((reach, reach, FLOOR / 2), (0.0, 0.0, -depth - FLOOR / 2)))
     return parts
@@ -119,13 +133,17 @@ def waterproof(params: dict[str, float]) -> tuple[PlugDesign, SocketDesign]:
         cylinder(r + params["body_extra"], body, position=(0.0, 0.0, insert + body / 2)),
     ]
     depth = insert - 0.002  # the floor stops the insert; the wider body stays 2 mm above the mouth
-    socket = SocketDesign(tuple(cavity_parts(offset_polygon(outline, CLEARANCE), depth)), depth, depth + FLOOR, r + 3 * WALL)
+    socket = SocketDesign(
+        tuple(cavity_parts(offset_polygon(outline, CLEARANCE), depth)), depth, depth + FLOOR, r + 3 * WALL
+    )
     return _finish_plug(params, parts, 0.0, insert + body), socket
 
 
 def _dsub_outline(width: float, height: float) -> np.ndarray:
     narrow = width - 2 * height * np.tan(np.radians(DSUB_TAPER_DEG))
-    return np.array([[-narrow / 2, -height / 2], [narrow / 2, -height / 2], [width / 2, height / 2], [-width / 2, height / 2]])
+    return np.array(
+        [[-narrow / 2, -height / 2], [narrow / 2, -height / 2], [width / 2, height / 2], [-width / 2, height / 2]]
+    )
 
 
 def dsub25(params: dict[str, float]) -> tuple[PlugDesign, SocketDesign]:
@@ -146,7 +164,9 @@ def dsub25(params: dict[str, float]) -> tuple[PlugDesign, SocketDesign]:
         for x in np.linspace(-span / 2, span / 2, count):
             parts.append(cylinder(PIN_RADIUS, PIN_LENGTH, position=(x, y, PIN_LENGTH / 2), collides=False))
     cavity = PIN_LENGTH + insert + 0.001
-    socket = SocketDesign(tuple(cavity_parts(offset_polygon(outline, CLEARANCE), cavity)), 0.0, cavity + FLOOR, width / 2 + 3 * WALL)
+    socket = SocketDesign(
+        tuple(cavity_parts(offset_polygon(outline, CLEARANCE), cavity)), 0.0, cavity + FLOOR, width / 2 + 3 * WALL
+    )
     return _finish_plug(params, parts, PIN_LENGTH + insert, PIN_LENGTH + insert + body), socket
 
 

@@ -76,12 +76,16 @@ def rack_design(params: dict[str, float], layout: list[tuple[float, float]]) -> 
     ]
     pegs = []
     for height, azimuth in layout:
-        direction = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+        direction = np.array(
+            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+        )
         start = np.array([0.0, 0.0, height])
         length = pole_r + reach
         tip = start + direction * length
         # A cylinder's axis is z: tilt it down from vertical to the peg's elevation, then turn it.
         orientation = rot_z(azimuth) @ rot_y(np.pi / 2 - elevation)
-        parts.append(cylinder(peg_r, length, position=tuple(start + direction * length / 2), orientation=quaternion(orientation)))
+        parts.append(
+            cylinder(peg_r, length, position=tuple(start + direction * length / 2), orientation=quaternion(orientation))
+        )
         pegs.append(Peg(start, tip, peg_r, reach))
     return RackDesign(dict(params), tuple(parts), tuple(pegs), pole_r)

@@ -50,7 +50,9 @@ def book_parts(thickness: float, depth: float, height: float) -> tuple[Part, ...
     return (box((thickness / 2, depth / 2, height / 2)),)
 
 
-def shelf_design(params: dict[str, float], book: dict[str, float], rng: np.random.Generator, num_slots: int) -> ShelfDesign:
+def shelf_design(
+    params: dict[str, float], book: dict[str, float], rng: np.random.Generator, num_slots: int
+) -> ShelfDesign:
     """A shelf whose row of neighbour books leaves `num_slots` slots the object `book` fits into.
 
     Slots are the book's thickness plus `clearance` wide and never adjacent; every other gap in the row
@@ -98,4 +100,6 @@ def shelf_design(params: dict[str, float], book: dict[str, float], rng: np.rando
     back = d / 2 - t - BACK_GAP
     for cx, thickness, depth, height in neighbours:
         parts.append(box((thickness / 2, depth / 2, height / 2), (cx, back - depth / 2, t + height / 2)))
-    return ShelfDesign(dict(params), tuple(parts), (x_low, x_high), (-d / 2, d / 2 - t), t, tuple(neighbours), tuple(slots))
+    return ShelfDesign(
+        dict(params), tuple(parts), (x_low, x_high), (-d / 2, d / 2 - t), t, tuple(neighbours), tuple(slots)
+    )

@@ -16,11 +16,15 @@ _TASKS: dict[str, PlacementTask] = {
         MugRackTask("mug_multi_medrack", 3, 2, "mug_rack_med_multi", "hang the mug on a peg of one of the racks"),
         BookShelfTask(),
         CanCabinetTask(),
-        InsertionTask("insert_waterproof", "waterproof", False, "insert the round waterproof connector into its socket"),
+        InsertionTask(
+            "insert_waterproof", "waterproof", False, "insert the round waterproof connector into its socket"
+        ),
         InsertionTask("insert_dsub25", "dsub25", False, "insert the D-sub 25 connector into its socket"),
         InsertionTask("insert_ssd", "ssd", False, "insert the SSD card into its slot"),
         InsertionTask(
-            "insert_waterproof_multi", "waterproof", True,
+            "insert_waterproof_multi",
+            "waterproof",
+            True,
             "insert the waterproof connector into one of the two matching sockets",
         ),
     )

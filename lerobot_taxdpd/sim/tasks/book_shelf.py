@@ -55,13 +55,21 @@ class BookShelfTask(PlacementTask):
     def build(self, client: int, scene: BookScene) -> BuiltScene:
         table = add_table(client)
         shelf = create_body(
-            client, scene.shelf.parts, position=scene.shelf_pose[:3, 3], orientation=quaternion(scene.shelf_pose),
-            color=(0.6, 0.45, 0.3, 1.0), friction=0.5,
+            client,
+            scene.shelf.parts,
+            position=scene.shelf_pose[:3, 3],
+            orientation=quaternion(scene.shelf_pose),
+            color=(0.6, 0.45, 0.3, 1.0),
+            friction=0.5,
         )
         b = scene.book
         book = create_body(
-            client, book_parts(b["thickness"], b["depth"], b["height"]), mass=BOOK_MASS,
-            position=scene.book_start[:3, 3], orientation=quaternion(scene.book_start), color=(0.2, 0.4, 0.8, 1.0),
+            client,
+            book_parts(b["thickness"], b["depth"], b["height"]),
+            mass=BOOK_MASS,
+            position=scene.book_start[:3, 3],
+            orientation=quaternion(scene.book_start),
+            color=(0.2, 0.4, 0.8, 1.0),
             friction=0.5,
         )
         return BuiltScene(book, (shelf,), table)

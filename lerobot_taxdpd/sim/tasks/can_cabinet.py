@@ -48,18 +48,29 @@ class CanCabinetTask(PlacementTask):
         can = CAN_SPACE.sample(rng, split)
         cabinet = cabinet_design(CABINET_SPACE.sample(rng, split), can, rng)
         cabinet_pose = transform(rot_z(rng.uniform(-0.4, 0.4)), (rng.uniform(-0.05, 0.05), rng.uniform(0.12, 0.2), 0.0))
-        start = transform(rot_z(rng.uniform(0, 2 * np.pi)), (rng.uniform(-0.2, 0.2), rng.uniform(-0.3, -0.2), can["height"] / 2 + 0.001))
+        start = transform(
+            rot_z(rng.uniform(0, 2 * np.pi)),
+            (rng.uniform(-0.2, 0.2), rng.uniform(-0.3, -0.2), can["height"] / 2 + 0.001),
+        )
         return CanScene(can, start, cabinet, cabinet_pose)
 
     def build(self, client: int, scene: CanScene) -> BuiltScene:
         table = add_table(client)
         cabinet = create_body(
-            client, scene.cabinet.parts, position=scene.cabinet_pose[:3, 3], orientation=quaternion(scene.cabinet_pose),
-            color=(0.5, 0.5, 0.55, 1.0), friction=0.6,
+            client,
+            scene.cabinet.parts,
+            position=scene.cabinet_pose[:3, 3],
+            orientation=quaternion(scene.cabinet_pose),
+            color=(0.5, 0.5, 0.55, 1.0),
+            friction=0.6,
         )
         can = create_body(
-            client, can_parts(scene.can["radius"], scene.can["height"]), mass=CAN_MASS,
-            position=scene.can_start[:3, 3], orientation=quaternion(scene.can_start), color=(0.8, 0.2, 0.2, 1.0),
+            client,
+            can_parts(scene.can["radius"], scene.can["height"]),
+            mass=CAN_MASS,
+            position=scene.can_start[:3, 3],
+            orientation=quaternion(scene.can_start),
+            color=(0.8, 0.2, 0.2, 1.0),
             friction=0.6,
         )
         return BuiltScene(can, (cabinet,), table)
@@ -107,7 +118,10 @@ class CanCabinetTask(PlacementTask):
                 continue
             if support.stack is not None and np.linalg.norm(base[:2] - support.centre[:2]) < radius:
                 return None
-            inside = cabinet.interior_x[0] <= base[0] <= cabinet.interior_x[1] and cabinet.interior_y[0] <= base[1] <= cabinet.interior_y[1]
+            inside = (
+                cabinet.interior_x[0] <= base[0] <= cabinet.interior_x[1]
+                and cabinet.interior_y[0] <= base[1] <= cabinet.interior_y[1]
+            )
             if support.stack is None and inside:
                 return None
         return "not on a stack's top or the open shelf"

@@ -75,7 +75,7 @@ class InsertionTask(PlacementTask):
             sockets = []
             for slot, index in enumerate(order):
                 name, design = entries[index]
-                x, y = (np.asarray(grid[slot]) * SOCKET_SPACING + rng.uniform(-0.006, 0.006, size=2))
+                x, y = np.asarray(grid[slot]) * SOCKET_SPACING + rng.uniform(-0.006, 0.006, size=2)
                 sockets.append((name, design, transform(rot_z(rng.uniform(-0.3, 0.3)), (x, y, design.mouth_height))))
             valid = tuple(slot for slot, index in enumerate(order) if index < 2)
             half = (SOCKET_SPACING / 2 + 0.035, SOCKET_SPACING / 2 + 0.035)
@@ -83,7 +83,9 @@ class InsertionTask(PlacementTask):
             sockets = [(self.connector, socket, transform(translation=(0.0, 0.0, socket.mouth_height)))]
             valid = (0,)
             half = (socket.half_extent + 0.006, socket.half_extent + 0.006)
-        board_pose = transform(rot_z(rng.uniform(-0.25, 0.25)), (rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), BOARD_THICKNESS))
+        board_pose = transform(
+            rot_z(rng.uniform(-0.25, 0.25)), (rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), BOARD_THICKNESS)
+        )
         grasp = transform(
             rot_y(np.radians(rng.uniform(-10.0, 10.0))),
             (rng.uniform(-0.005, 0.005), 0.0, rng.uniform(0.0, 0.005)),
@@ -102,13 +104,22 @@ class InsertionTask(PlacementTask):
     def build(self, client: int, scene: InsertionScene) -> BuiltScene:
         table = add_table(client)
         board = create_body(
-            client, self.board_parts(scene), position=scene.board_pose[:3, 3], orientation=quaternion(scene.board_pose),
-            color=(0.3, 0.3, 0.35, 1.0), friction=0.3,
+            client,
+            self.board_parts(scene),
+            position=scene.board_pose[:3, 3],
+            orientation=quaternion(scene.board_pose),
+            color=(0.3, 0.3, 0.35, 1.0),
+            friction=0.3,
         )
         start = self.start_pose(scene)
         plug = create_body(
-            client, scene.plug.parts, mass=PLUG_MASS, position=start[:3, 3], orientation=quaternion(start),
-            color=(0.9, 0.75, 0.2, 1.0), friction=0.3,
+            client,
+            scene.plug.parts,
+            mass=PLUG_MASS,
+            position=start[:3, 3],
+            orientation=quaternion(start),
+            color=(0.9, 0.75, 0.2, 1.0),
+            friction=0.3,
         )
         return BuiltScene(plug, (board,), table)
 
@@ -121,7 +132,11 @@ class InsertionTask(PlacementTask):
     def seat_pose(self, scene: InsertionScene, index: int) -> np.ndarray:
         """The plug's pose fully inserted into socket `index` (its seat face SEAT_GAP above where it stops)."""
         depth = scene.sockets[index][1].seat_depth
-        return scene.socket_world(index) @ transform(translation=(0.0, 0.0, -depth + SEAT_GAP)) @ transform(translation=-scene.plug.seat)
+        return (
+            scene.socket_world(index)
+            @ transform(translation=(0.0, 0.0, -depth + SEAT_GAP))
+            @ transform(translation=-scene.plug.seat)
+        )
 
     # ------------------------------------------------------------------------------------------- goals
     def goal_modes(self, scene: InsertionScene) -> list[GoalMode]:

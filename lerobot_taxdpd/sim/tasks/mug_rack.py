@@ -76,12 +76,24 @@ class MugRackTask(PlacementTask):
     def build(self, client: int, scene: MugScene) -> BuiltScene:
         table = add_table(client)
         racks = tuple(
-            create_body(client, rack.parts, position=pose[:3, 3], orientation=quaternion(pose), color=(0.45, 0.3, 0.2, 1.0), friction=0.8)
+            create_body(
+                client,
+                rack.parts,
+                position=pose[:3, 3],
+                orientation=quaternion(pose),
+                color=(0.45, 0.3, 0.2, 1.0),
+                friction=0.8,
+            )
             for rack, pose in zip(scene.racks, scene.rack_poses)
         )
         mug = create_body(
-            client, scene.mug.parts, mass=MUG_MASS, position=scene.mug_start[:3, 3],
-            orientation=quaternion(scene.mug_start), color=(0.85, 0.85, 0.9, 1.0), friction=0.8,
+            client,
+            scene.mug.parts,
+            mass=MUG_MASS,
+            position=scene.mug_start[:3, 3],
+            orientation=quaternion(scene.mug_start),
+            color=(0.85, 0.85, 0.9, 1.0),
+            friction=0.8,
         )
         return BuiltScene(mug, racks, table)
 
@@ -100,7 +112,9 @@ class MugRackTask(PlacementTask):
         return modes
 
     @staticmethod
-    def _hanging_pose(mug: MugDesign, point: np.ndarray, direction: np.ndarray, peg_radius: float, side: float) -> np.ndarray:
+    def _hanging_pose(
+        mug: MugDesign, point: np.ndarray, direction: np.ndarray, peg_radius: float, side: float
+    ) -> np.ndarray:
         """Mug pose hanging at rest from the peg axis point `point`, its hole axis along `side * direction`."""
         up = np.array([0.0, 0.0, 1.0]) - direction[2] * direction
         up /= np.linalg.norm(up)
@@ -121,8 +135,13 @@ class MugRackTask(PlacementTask):
         centre = np.mean([pose[:3, 3] for pose in scene.rack_poses], axis=0) + np.array([0.0, 0.0, 0.2])
         multi = self.num_racks > 1
         return orbit_cameras(
-            centre, 1.1 if multi else 0.7, 25.0, (-120.0, -40.0, 60.0),
-            fov_deg=45.0, width=320 if multi else 224, height=240 if multi else 168,
+            centre,
+            1.1 if multi else 0.7,
+            25.0,
+            (-120.0, -40.0, 60.0),
+            fov_deg=45.0,
+            width=320 if multi else 224,
+            height=240 if multi else 168,
         )
 
     # ---------------------------------------------------------------------------------------- execution
@@ -138,7 +157,11 @@ class MugRackTask(PlacementTask):
         for rack_id, rack, pose in zip(built.parent_ids, scene.racks, scene.rack_poses):
             # The part of each peg outside the pole, in world coordinates.
             pegs = [
-                (pose[:3, :3] @ (peg.tip - peg.direction * peg.reach) + pose[:3, 3], pose[:3, :3] @ peg.tip + pose[:3, 3], peg.radius)
+                (
+                    pose[:3, :3] @ (peg.tip - peg.direction * peg.reach) + pose[:3, 3],
+                    pose[:3, :3] @ peg.tip + pose[:3, 3],
+                    peg.radius,
+                )
                 for peg in rack.pegs
             ]
             for point in contact_points(client, built.object_id, rack_id):
