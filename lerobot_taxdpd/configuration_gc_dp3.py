@@ -7,8 +7,8 @@ Time steps: DP3's cloth variant uses horizon 4, 2 observation steps and 4 action
 horizon from the oldest observation, which would leave only 3 of 4 planned actions executable; here the
 horizon counts from the current step (actions t .. t+3), so all 4 planned actions can run.
 
-Sizes: DP3's U-Net has down_dims (512, 1024, 2048), about 250M parameters, impractical on a CPU. The
-default here is (64, 128, 256) (about 4M parameters) with a narrower point encoder; pass
+Sizes: DP3's U-Net has down_dims (512, 1024, 2048), about 255M parameters, impractical on a CPU. The
+default here is (64, 128, 256) with a narrower point encoder (about 5.4M parameters); pass
 `--policy.down_dims='[512,1024,2048]' --policy.point_encoder_dims='[64,128,256]'` for the paper's size.
 
 Normalisation: state and action are mapped to [-1, 1] with the dataset's min/max (as DP3 does). Point
@@ -38,7 +38,8 @@ class GcDp3Config(PreTrainedConfig):
     n_action_steps: int = 4
     # Clouds concatenated in this order; block k carries one-hot segment k. Drop the goal key for plain DP3.
     cloud_keys: tuple[str, ...] = (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY)
-    # Points kept per cloud by farthest point sampling (None: all). Fewer points make CPU training cheaper.
+    # Points kept per cloud (None: all): the first rows, which is a farthest-point subset because this
+    # project stores every cloud in farthest-point-sampling order. Fewer points make CPU training cheaper.
     points_per_cloud: int | None = None
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {

@@ -20,7 +20,6 @@ from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
 from lerobot_taxdpd.configuration_gc_dp3 import GcDp3Config
-from lerobot_taxdpd.geometry import farthest_point_sample, gather_points
 from lerobot_taxdpd.schema import ACTION_KEY, STATE_KEY
 
 
@@ -183,12 +182,7 @@ class GcDp3Model(nn.Module):
         """Concatenate the clouds (..., N_k, 3) into (..., sum N_k, 3 + K), each row tagged with its block."""
         blocks = []
         for index, key in enumerate(self.config.cloud_keys):
-            points = batch[key]
-            k = self.config.points_per_cloud
-            if k is not None and points.shape[-2] > k:
-                flat = points.reshape(-1, *points.shape[-2:])
-                flat = gather_points(flat, farthest_point_sample(flat, k))
-                points = flat.reshape(*points.shape[:-2], k, 3)
+            points = batch[key][..., : self.config.points_per_cloud, :]
             tag = F.one_hot(torch.tensor(index, device=points.device), len(self.config.cloud_keys))
             blocks.append(torch.cat([points, tag.to(points.dtype).expand(*points.shape[:-1], -1)], dim=-1))
         return torch.cat(blocks, dim=-2)

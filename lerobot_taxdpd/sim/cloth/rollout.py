@@ -8,7 +8,7 @@ result for every (hole, hanger) pair, each simulated from the same start.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,12 +78,23 @@ def demo_target(scene: ClothScene) -> tuple[int, int]:
     return int(rng.integers(len(scene.holes))), int(rng.integers(len(scene.hangers)))
 
 
-def valid_goals(env: ClothHangEnv, scene: ClothScene) -> dict[tuple[int, int], np.ndarray]:
-    """Settled cloth vertices for every (hole, hanger) the expert hangs successfully from this start."""
+def valid_goals(
+    env: ClothHangEnv,
+    scene: ClothScene,
+    pairs: Iterable[tuple[int, int]] | None = None,
+    stop_after: int | None = None,
+) -> dict[tuple[int, int], np.ndarray]:
+    """Settled cloth vertices for every (hole, hanger) the expert hangs successfully from this start.
+
+    `pairs` restricts and orders the pairs tried; `stop_after` stops once that many goals are found.
+    """
+    if pairs is None:
+        pairs = [(hole, hanger) for hole in range(len(scene.holes)) for hanger in range(len(scene.hangers))]
     goals = {}
-    for hole in range(len(scene.holes)):
-        for hanger in range(len(scene.hangers)):
-            episode = rollout(env, scene, expert(hole, hanger))
-            if episode.success_matrix[hole, hanger]:
-                goals[hole, hanger] = episode.final_vertices
+    for hole, hanger in pairs:
+        episode = rollout(env, scene, expert(hole, hanger))
+        if episode.success_matrix[hole, hanger]:
+            goals[hole, hanger] = episode.final_vertices
+            if stop_after is not None and len(goals) >= stop_after:
+                break
     return goals

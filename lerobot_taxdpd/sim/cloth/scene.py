@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lerobot_taxdpd.geometry import farthest_point_indices
 from lerobot_taxdpd.sim.cloth.mesh import Hole, sample_holes
 
 SPLITS = ("train", "test")
@@ -167,8 +168,6 @@ def _sample_hangers(rng: np.random.Generator, r: SceneRanges, count: int = 2) ->
 
 def hanger_surface_points(hangers: tuple[Hanger, ...], num_points: int, rng: np.random.Generator) -> np.ndarray:
     """Points on the hangers' cylinder surfaces (base side and top, pole, peg and its tip cap), FPS-thinned."""
-    from lerobot_taxdpd.geometry import farthest_point_indices
-
     parts = []
     for hanger in hangers:
         s = hanger.shape
