@@ -112,6 +112,7 @@ def test_lerobot_eval_runs_a_taxdpd_checkpoint_on_a_benchmark(tmp_path):
         f"--policy.path={checkpoint}",
         "--env.type=taxdpd_sim",
         "--env.task=insert_ssd",
+        "--policy.num_inference_steps=2",
         "--eval.n_episodes=1",
         "--eval.batch_size=1",
         "--policy.device=cpu",
