@@ -30,6 +30,7 @@ SEAT_GAP = 0.0002
 SEAT_TOLERANCE = 0.001
 CAPTURE_POSITION = np.array([0.22, 0.0, 0.20])
 SOCKET_SPACING = 0.075
+BOARD_MARGIN = 0.006
 
 
 @dataclass(frozen=True)
@@ -78,11 +79,14 @@ class InsertionTask(PlacementTask):
                 x, y = np.asarray(grid[slot]) * SOCKET_SPACING + rng.uniform(-0.006, 0.006, size=2)
                 sockets.append((name, design, transform(rot_z(rng.uniform(-0.3, 0.3)), (x, y, design.mouth_height))))
             valid = tuple(slot for slot, index in enumerate(order) if index < 2)
-            half = (SOCKET_SPACING / 2 + 0.035, SOCKET_SPACING / 2 + 0.035)
         else:
             sockets = [(self.connector, socket, transform(translation=(0.0, 0.0, socket.mouth_height)))]
             valid = (0,)
-            half = (socket.half_extent + 0.006, socket.half_extent + 0.006)
+        # The board just covers the sockets, like the cropped scene clouds of the real experiments.
+        half = tuple(
+            max(abs(pose[axis, 3]) + design.half_extent for _, design, pose in sockets) + BOARD_MARGIN
+            for axis in (0, 1)
+        )
         board_pose = transform(
             rot_z(rng.uniform(-0.25, 0.25)), (rng.uniform(-0.015, 0.015), rng.uniform(-0.015, 0.015), BOARD_THICKNESS)
         )
