@@ -77,7 +77,7 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     for name in ("ground_truth_goal", "predicted_goal"):
         rate = summary[name]
         assert rate["trials"] == 2 and 0.0 <= rate["ci95_low"] <= rate["success_rate"] <= rate["ci95_high"] <= 1.0
-        assert rate["median_seconds_per_episode"] > 0
+        assert rate["median_seconds_per_episode"] > 0 and 0.0 <= rate["hole_at_a_peg_before_release"] <= 1.0
     trials = summary["per_trial"]
     assert [t["seed"] for t in trials] == [8, 9]
     for trial in trials:

@@ -7,7 +7,7 @@ import pytest
 
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
-from lerobot_taxdpd.sim.cloth.rollout import expert, rollout
+from lerobot_taxdpd.sim.cloth.rollout import demo_target, expert, rollout
 from lerobot_taxdpd.sim.cloth.scene import sample_scene
 
 
@@ -41,3 +41,14 @@ def test_expert_rejects_indices_outside_the_scene(env):
         ScriptedExpert(env, hole=5, hanger=0)
     with pytest.raises(ValueError, match="hanger"):
         ScriptedExpert(env, hole=0, hanger=2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("split", ["train", "test"])
+def test_expert_succeeds_on_at_least_90_percent_of_scenes(env, split):
+    """The issue's bar for the demonstrator, on 20 fresh scenes per split (about 2 minutes each)."""
+    successes = 0
+    for seed in range(500, 520):
+        scene = sample_scene(split, seed)
+        successes += rollout(env, scene, expert(*demo_target(scene))).success
+    assert successes >= 18, f"{successes}/20 on {split} geometry"

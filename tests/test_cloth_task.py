@@ -155,3 +155,19 @@ def test_released_cloth_falls_and_the_episode_ends(env):
     assert env.cloth_vertices()[:, 2].min() < 0.3, "the cloth fell to the ground"
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(6))
+
+
+def test_simulated_hangers_match_their_analytic_geometry(env):
+    """The physics bodies, the hanger cloud and the success check all describe the same pegs."""
+    import pybullet as pb
+
+    env.reset(seed=5)
+    for hanger in env.scene.hangers:
+        outside = hanger.peg_tip + 0.5 * hanger.peg_direction
+        hit = pb.rayTest(outside.tolist(), hanger.peg_root.tolist(), physicsClientId=env._client)[0]
+        np.testing.assert_allclose(hit[3], hanger.peg_tip, atol=0.02)
+        top = np.array([hanger.x, hanger.y, hanger.pole_height])
+        hit = pb.rayTest((top + [0, 0, 1.0]).tolist(), (top - [0, 0, 1.0]).tolist(), physicsClientId=env._client)[0]
+        np.testing.assert_allclose(hit[3], top, atol=0.02)
+        distances = np.linalg.norm(env.hanger_points[:, None] - hanger.peg_tip, axis=-1)
+        assert distances.min() < 0.1, "the hanger cloud covers the peg tip"

@@ -25,7 +25,7 @@ from lerobot_taxdpd.metrics import coverage_precision, success_summary
 from lerobot_taxdpd.schema import GOAL_CLOUD_KEY
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.plot import plot_trial
-from lerobot_taxdpd.sim.cloth.rollout import Controller, rollout, valid_goals
+from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 from lerobot_taxdpd.sim.harness import machine_info, write_report
 
@@ -105,16 +105,14 @@ def run_trial(request: TrialRequest) -> dict:
         if request.ground_truth_goals and executor is not None:
             torch.manual_seed(request.seed)
             result["ground_truth_pair"] = list(keys[0])
-            episode = rollout(env, scene, policy_controller(*executor, goals[0]))
-            result["ground_truth_goal"] = {"success": episode.success, "seconds": episode.seconds}
+            result["ground_truth_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, goals[0])))
         predicted = None
         if request.goal_policy_path:
             predicted = sample_goals(request.goal_policy_path, start_cloud, hanger_cloud, request.num_goal_samples)
             result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
             if executor is not None:
                 torch.manual_seed(request.seed)
-                episode = rollout(env, scene, policy_controller(*executor, predicted[0]))
-                result["predicted_goal"] = {"success": episode.success, "seconds": episode.seconds}
+                result["predicted_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, predicted[0])))
         if request.plot_dir:
             path = Path(request.plot_dir) / f"{request.split}_{request.seed:04d}.png"
             shown = predicted[0] if predicted is not None else None
@@ -124,6 +122,14 @@ def run_trial(request: TrialRequest) -> dict:
         return result
     finally:
         env.close()
+
+
+def _outcome(episode: Episode) -> dict:
+    return {
+        "success": episode.success,
+        "hole_at_a_peg_before_release": bool(episode.pre_release.any()),
+        "seconds": episode.seconds,
+    }
 
 
 def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int) -> np.ndarray:
@@ -160,6 +166,8 @@ def summarise(trials: list[dict], config: dict, workers: int) -> dict:
         runs = [t[name] for t in trials if name in t]
         if runs:
             summary[name] = success_summary(sum(r["success"] for r in runs), len(runs))
+            reached = sum(r["hole_at_a_peg_before_release"] for r in runs)
+            summary[name]["hole_at_a_peg_before_release"] = reached / len(runs)
             summary[name]["median_seconds_per_episode"] = float(np.median([r["seconds"] for r in runs]))
     metrics = [t["goal_metrics"] for t in trials if "goal_metrics" in t]
     if metrics:
@@ -200,6 +208,7 @@ def evaluate(
         "split": split, "seeds": f"{seed}..{seed + trials - 1}", "policy_path": policy_path,
         "goal_policy_path": goal_policy_path, "num_goal_samples": num_goal_samples,
         "goal_threshold_m": goal_threshold, "device": device,
+        "torch_threads_per_trial": 1 if workers > 1 else torch.get_num_threads(),
     }
     requests = [
         TrialRequest(

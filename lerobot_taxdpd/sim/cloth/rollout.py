@@ -25,6 +25,7 @@ class Episode:
     scene: ClothScene
     success: bool
     success_matrix: np.ndarray  # (holes, hangers)
+    pre_release: np.ndarray  # (holes, hangers): hole centroid near the peg's middle when the grippers let go
     start_vertices: np.ndarray  # cloth mesh at the first observation
     final_vertices: np.ndarray  # cloth mesh after release and settling
     seconds: float
@@ -54,6 +55,7 @@ def rollout(
         scene=scene,
         success=info["is_success"],
         success_matrix=info["success_matrix"],
+        pre_release=info["pre_release"],
         start_vertices=start_vertices,
         final_vertices=env.cloth_vertices(),
         seconds=time.perf_counter() - started,
