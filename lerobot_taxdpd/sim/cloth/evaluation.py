@@ -116,7 +116,7 @@ def run_trial(request: TrialRequest) -> dict:
         if request.plot_dir:
             path = Path(request.plot_dir) / f"{request.split}_{request.seed:04d}.png"
             shown = predicted[0] if predicted is not None else None
-            title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goals"
+            title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goal{'s' * (len(goals) > 1)}"
             result["plot"] = str(plot_trial(path, hanger_cloud, start_cloud, goals, shown, title))
         result["seconds"] = time.perf_counter() - started
         return result

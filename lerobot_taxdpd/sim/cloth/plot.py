@@ -30,7 +30,7 @@ def plot_trial(
     axes.scatter(*hangers.T, s=2, c="0.4", label="hangers")
     axes.scatter(*cloth.T, s=2, c="tab:blue", label="cloth (start)")
     for i, goal in enumerate(valid_goals):
-        axes.scatter(*goal.T, s=1, c="tab:green", alpha=0.25, label="valid goals" if i == 0 else None)
+        axes.scatter(*goal.T, s=2, c="tab:green", alpha=0.45, label="valid goals" if i == 0 else None)
     if predicted_goal is not None:
         inside = np.all((predicted_goal >= low) & (predicted_goal <= high), axis=1)
         axes.scatter(*predicted_goal[inside].T, s=3, c="tab:red", label="predicted goal")
