@@ -17,6 +17,7 @@ import argparse
 
 import numpy as np
 import torch
+from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
@@ -45,7 +46,9 @@ def scenes(batch: int, num_object_points: int, num_scene_points: int) -> dict[st
 
 
 def flops(run) -> float:
-    with FlopCounterMode(display=False) as counter:
+    """Matmul FLOPs of one call. Attention runs on the math backend while counting, because the counter
+    has no formula for the CPU flash-attention kernel and would silently leave attention out."""
+    with sdpa_kernel(SDPBackend.MATH), FlopCounterMode(display=False) as counter:
         run()
     return float(counter.get_total_flops())
 
