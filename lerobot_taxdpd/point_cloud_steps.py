@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from lerobot.configs.types import PipelineFeatureType, PolicyFeature
-from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
-from lerobot.utils.constants import OBS_ENV_STATE
+from lerobot.processor import ObservationProcessorStep, PolicyActionProcessorStep, ProcessorStepRegistry
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE
 from torch import Tensor
 
 from lerobot_taxdpd.schema import OBJECT_KEY, POINT_CLOUD_PREFIX, SCENE_KEY
@@ -61,4 +61,26 @@ class UnpackEnvironmentPointCloudsStep(ObservationProcessorStep):
     def transform_features(
         self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
     ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        return features
+
+
+@dataclass
+@ProcessorStepRegistry.register(name="taxdpd_flatten_goal_cloud")
+class FlattenGoalCloudStep(PolicyActionProcessorStep):
+    """Flatten a batch of goal clouds (B, N_O, 3) into LeRobot's (B, action_dim) action layout.
+
+    `lerobot-eval` and LeRobot's robot loops require 2-D actions, while the policy's `select_action`
+    answers with clouds; the package's envs reshape the N_O * 3 values back into the cloud.
+    """
+
+    def action(self, action: Tensor) -> Tensor:
+        return action.flatten(1) if action.dim() == 3 else action
+
+    def transform_features(
+        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
+    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        action = features.get(PipelineFeatureType.ACTION, {}).get(ACTION)
+        if action is not None and len(action.shape) == 2:
+            flat = PolicyFeature(type=action.type, shape=(action.shape[0] * action.shape[1],))
+            features[PipelineFeatureType.ACTION] = {**features[PipelineFeatureType.ACTION], ACTION: flat}
         return features

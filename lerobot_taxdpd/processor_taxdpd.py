@@ -2,7 +2,8 @@
 
 LeRobot's standard steps are kept (rename, batch, device, normaliser; unnormaliser, device) because
 `lerobot-train --policy.path` and `lerobot-eval` address them by registry name when they pass overrides.
-The config maps every feature to IDENTITY: the policy rescales clouds isotropically itself.
+The config maps every feature to IDENTITY: the policy rescales clouds isotropically itself. The
+postprocessor hands actions out in LeRobot's (B, action_dim) layout: the goal cloud flattened row by row.
 """
 
 from __future__ import annotations
@@ -23,7 +24,11 @@ from lerobot.processor.converters import policy_action_to_transition, transition
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.point_cloud_steps import AddPointCloudBatchDimensionStep, UnpackEnvironmentPointCloudsStep
+from lerobot_taxdpd.point_cloud_steps import (
+    AddPointCloudBatchDimensionStep,
+    FlattenGoalCloudStep,
+    UnpackEnvironmentPointCloudsStep,
+)
 from lerobot_taxdpd.schema import OBJECT_KEY
 
 
@@ -56,6 +61,7 @@ def make_taxdpd_pre_post_processors(
                 features=config.output_features, norm_map=config.normalization_mapping, stats=dataset_stats
             ),
             DeviceProcessorStep(device="cpu"),
+            FlattenGoalCloudStep(),
         ],
         name=POLICY_POSTPROCESSOR_DEFAULT_NAME,
         to_transition=policy_action_to_transition,

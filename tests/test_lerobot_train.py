@@ -68,8 +68,8 @@ def test_train_fine_tune_and_load_through_lerobot(cli, slot_dataset, tmp_path):
     )
     scene = make_slot_scene(np.random.default_rng(0), 32, 64)
     observation = preprocessor({OBJECT_KEY: torch.from_numpy(scene.object_points), SCENE_KEY: torch.from_numpy(scene.scene_points)})
-    goal = postprocessor(after.select_action(observation))
-    assert goal.shape == (1, 32, 3) and bool(torch.isfinite(goal).all())
+    action = postprocessor(after.select_action(observation))
+    assert action.shape == (1, 32 * 3) and bool(torch.isfinite(action).all())
 
 
 def test_unknown_dataset_layout_fails_with_the_missing_feature_named(cli, tmp_path):

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +10,7 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.processor import PolicyProcessorPipeline
 
+from conftest import install_in_hub_cache
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
 from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.validation import PointCloudError
@@ -106,8 +105,10 @@ def test_processor_batches_a_single_sample_and_unpacks_env_clouds():
     obj, scene = clouds(1)
     single = preprocessor({OBJECT_KEY: obj[0], SCENE_KEY: scene[0]})
     assert single[OBJECT_KEY].shape == (1, N_O, 3)
-    goal = postprocessor(policy.select_action(single))
+    goal = policy.select_action(single)
     assert goal.shape == (1, N_O, 3)
+    action = postprocessor(goal)  # LeRobot's (batch, action_dim) layout, row by row
+    assert action.shape == (1, N_O * 3) and torch.equal(action.reshape(1, N_O, 3), goal)
     packed = preprocessor({"observation.environment_state": torch.cat([obj[0], scene[0]])})
     assert torch.equal(packed[OBJECT_KEY], obj) and torch.equal(packed[SCENE_KEY], scene)
 
@@ -127,19 +128,11 @@ def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path)
     assert "datasets:" in pushed_card and "me/slots" in pushed_card and "translation_error_mm" in pushed_card
 
 
-def _install_in_hub_cache(hf_home: Path, repo_id: str, files: Path, revision: str = "0" * 40) -> None:
-    """Lay files out exactly as huggingface_hub caches a downloaded model repo."""
-    repo_dir = hf_home / "hub" / f"models--{repo_id.replace('/', '--')}"
-    shutil.copytree(files, repo_dir / "snapshots" / revision)
-    (repo_dir / "refs").mkdir()
-    (repo_dir / "refs" / "main").write_text(revision)
-
-
 def test_hub_id_loads_offline_from_the_huggingface_cache(tmp_path, hf_home):
     policy = tiny_policy()
     policy.metrics = {"rmse_mm": 4.0}
     policy.save_pretrained(tmp_path / "model")
-    _install_in_hub_cache(hf_home, "taxdpd-tests/tiny", tmp_path / "model")
+    install_in_hub_cache(hf_home, "taxdpd-tests/tiny", tmp_path / "model")
     config = PreTrainedConfig.from_pretrained("taxdpd-tests/tiny")
     assert isinstance(config, TaxDPDConfig)
     loaded = TaxDPDPolicy.from_pretrained("taxdpd-tests/tiny")

@@ -3,7 +3,6 @@ factory, observation preprocessing and the taxdpd processor step that unpacks th
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import gymnasium as gym
@@ -77,15 +76,6 @@ def test_lerobot_factory_and_preprocessing_hand_the_policy_both_clouds():
     vector.close()
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("lerobot_taxdpd.modeling_taxdpd") is None,
-    reason="lerobot-eval needs a policy checkpoint; TaxDPDPolicy (lerobot_taxdpd.modeling_taxdpd) is not there yet",
-)
-@pytest.mark.xfail(
-    strict=True,
-    reason="TaxDPDPolicy.select_action returns (B, N_O, 3) but lerobot-eval 0.4.4 asserts (batch, action_dim) "
-    "actions; it must return (B, N_O * 3) (the env accepts both). Remove this mark once it does.",
-)
 def test_lerobot_eval_runs_a_taxdpd_checkpoint_on_a_benchmark(tmp_path):
     from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
 
