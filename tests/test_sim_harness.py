@@ -93,13 +93,32 @@ def test_the_harness_rejects_what_is_not_a_goal_predictor():
         evaluate(WrongShape(), trials, 2, progress=False)
     with pytest.raises(ValueError, match="NaN"):
         evaluate(NotFinite(), trials, 2, progress=False)
-    with pytest.raises(TypeError, match="sample_goals"):
+    with pytest.raises(TypeError, match="neither sample_goals.* nor predict_poses"):
         evaluate(object(), trials, 2, progress=False)
     with pytest.raises(ValueError, match="object_points do not belong"):
         OraclePredictor(_trials("insert_ssd", 1, first_seed=5)).sample_goals(
             torch.from_numpy(trials[0].object_points)[None], torch.from_numpy(trials[0].scene_points)[None], 1
         )
     assert isinstance(OraclePredictor(trials), GoalPredictor)
+
+
+class GroundTruthPoses:
+    """A pose-only baseline: answers with each trial's T*, nothing else."""
+
+    def __init__(self, trials):
+        self._poses = [(t.object_points, t.goal_transform) for t in trials]
+
+    def predict_poses(self, object_points, scene_points, num_samples):
+        cloud = object_points[0].numpy()
+        pose = next(p for o, p in self._poses if np.array_equal(o, cloud))
+        return torch.from_numpy(np.asarray(pose, np.float32)).expand(1, num_samples, 4, 4)
+
+
+def test_pose_only_predictors_are_executed_through_their_poses():
+    trials = _trials("insert_waterproof", 2)
+    report = evaluate(GroundTruthPoses(trials), trials, 2, progress=False)
+    assert report["success"]["success_rate"] == 1.0
+    assert report["translation_error_mm"]["median"] < 1e-2 and report["rotation_error_deg"]["median"] < 1e-2
 
 
 def test_command_line_eval_writes_the_report(tmp_path):

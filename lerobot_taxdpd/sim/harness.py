@@ -33,7 +33,7 @@ from lerobot_taxdpd.metrics import (
     translation_error,
 )
 from lerobot_taxdpd.sim.figures import plot_goal_samples, plot_weight_map
-from lerobot_taxdpd.sim.predictors import GoalPredictor
+from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
 from lerobot_taxdpd.sim.trials import Trial, execute
 
 
@@ -106,8 +106,7 @@ def evaluate(
     """Run every trial and return the report (see module docstring); PNGs go to `figures_dir`."""
     if num_samples < 1:
         raise ValueError(f"num_samples: must be at least 1, got {num_samples}")
-    if not isinstance(predictor, GoalPredictor):
-        raise TypeError(f"{type(predictor).__name__} has no sample_goals(object_points, scene_points, num_samples)")
+    predictor = as_goal_predictor(predictor)
     if figures_dir is not None:
         figures_dir = Path(figures_dir)
         figures_dir.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,7 @@
-"""What the evaluation harness evaluates: any goal predictor with `sample_goals`, and how to load one.
+"""What the evaluation harness evaluates: any goal predictor with `sample_goals` or `predict_poses`.
 
-The harness needs only `sample_goals`; it turns each sampled goal cloud into a pose with RANSAC-SVD
+The harness needs only `sample_goals`; a predictor that answers with poses alone (an SE(3) baseline) is
+wrapped by `as_goal_predictor`, which moves the object cloud by each pose. The harness turns each sampled goal cloud into a pose with RANSAC-SVD
 itself (as the robot would, and as the lerobot-eval env does), so the pose it executes and the cloud it
 scores are always the same prediction. A predictor may also offer `placement_distribution` (TAX-DPD's
 Dense GMM), which the harness then plots.
@@ -31,6 +32,42 @@ class GoalPredictor(Protocol):
     """Anything that samples goal clouds: (B, N_O, 3), (B, N_S, 3), K -> (B, K, N_O, 3), metres."""
 
     def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor: ...
+
+
+@runtime_checkable
+class PosePredictor(Protocol):
+    """Anything that samples placement poses: (B, N_O, 3), (B, N_S, 3), K -> (B, K, 4, 4), goal = T @ object."""
+
+    def predict_poses(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor: ...
+
+
+class PoseGoalPredictor:
+    """A pose predictor seen as a goal predictor: each sampled pose applied to the object cloud."""
+
+    def __init__(self, predictor: PosePredictor):
+        self.predictor = predictor
+
+    def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor:
+        object_points = torch.as_tensor(object_points, dtype=torch.float32)
+        poses = torch.as_tensor(self.predictor.predict_poses(object_points, scene_points, num_samples), dtype=torch.float32)
+        expected = (object_points.shape[0], num_samples, 4, 4)
+        if tuple(poses.shape) != expected:
+            name = type(self.predictor).__name__
+            raise ValueError(f"{name}.predict_poses returned shape {tuple(poses.shape)}, expected {expected}")
+        rotations, translations = poses[..., :3, :3], poses[..., :3, 3]
+        return torch.einsum("bkij,bnj->bkni", rotations, object_points.to(poses.device)) + translations[:, :, None]
+
+
+def as_goal_predictor(predictor: object, origin: str = "predictor") -> GoalPredictor:
+    """The predictor itself if it samples goal clouds, wrapped if it only predicts poses; else a TypeError."""
+    if isinstance(predictor, GoalPredictor):
+        return predictor
+    if isinstance(predictor, PosePredictor):
+        return PoseGoalPredictor(predictor)
+    raise TypeError(
+        f"{origin}: {type(predictor).__name__} has neither sample_goals(object_points, scene_points, num_samples) "
+        "nor predict_poses(object_points, scene_points, num_samples)"
+    )
 
 
 def _cloud_key(points: np.ndarray) -> str:
@@ -77,24 +114,19 @@ class OraclePredictor:
         return torch.from_numpy(np.stack(batch).astype(np.float32))
 
 
-def load_policy(path: str):
-    """A trained TAX-DPD policy from a checkpoint folder or Hub id (imported only when asked for)."""
-    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+def load_policy(name_or_path: str):
+    """A trained TAX-DPD policy from a shipped name, a checkpoint folder or a Hub id (imported when asked for)."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
-    policy = TaxDPDPolicy.from_pretrained(path)
-    policy.eval()
-    return policy
+    return load_goal_predictor(name_or_path)
 
 
 def load_predictor(spec: str) -> GoalPredictor:
-    """`package.module:factory` -> factory(), for baselines outside this package."""
+    """`package.module:factory` -> factory(), for baselines outside this package (goal or pose predictors)."""
     module_name, _, attribute = spec.partition(":")
     if not module_name or not attribute:
         raise ValueError(f"--predictor: expected 'oracle' or 'package.module:factory', got {spec!r}")
     factory = getattr(importlib.import_module(module_name), attribute, None)
     if factory is None:
         raise ValueError(f"--predictor: {module_name!r} has no attribute {attribute!r}")
-    predictor = factory()
-    if not isinstance(predictor, GoalPredictor):
-        raise TypeError(f"--predictor: {spec} returned {type(predictor).__name__}, which has no sample_goals method")
-    return predictor
+    return as_goal_predictor(factory(), origin=f"--predictor {spec}")
