@@ -18,6 +18,8 @@ __version__ = "0.1.0"
 _LAZY = {
     "TaxDPDPolicy": "lerobot_taxdpd.modeling_taxdpd",
     "GcDp3Policy": "lerobot_taxdpd.modeling_gc_dp3",
+    "load_goal_predictor": "lerobot_taxdpd.goal_predictors",
+    "list_goal_predictors": "lerobot_taxdpd.goal_predictors",
 }
 
 __all__ = [

@@ -28,12 +28,10 @@ from lerobot_taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.model.parameterizations import randn_like
 from lerobot_taxdpd.model_card import render_model_card
 from lerobot_taxdpd.scaling import estimate_point_scale, object_radius
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.validation import PointCloudError, check_point_cloud, check_same_shape
 
 logger = logging.getLogger(__name__)
-
-METRICS_FILE = "metrics.json"
 
 
 class TaxDPDModel(nn.Module):

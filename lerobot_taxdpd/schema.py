@@ -27,6 +27,8 @@ GOAL_TRANSFORM_KEY = "goal.transform"
 DONE_KEY = "next.done"
 SUCCESS_KEY = "next.success"
 POINT_CLOUD_PREFIX = "observation.pointcloud."
+#: Measured metrics saved beside a checkpoint's weights (and listed by `list_goal_predictors`).
+METRICS_FILE = "metrics.json"
 
 #: Frames per second written to goal-prediction datasets. Frames of one episode are views of one demo, not
 #: a time series, so the value only matters to LeRobot's timestamp checks.

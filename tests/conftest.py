@@ -7,6 +7,7 @@ is inherited by the CLI subprocesses the tests start (`lerobot-train`, converter
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,6 +35,14 @@ def run_cli(name: str, *args: str, timeout: float = 600, cwd: Path | None = None
             f"\n--- stderr\n{result.stderr[-8000:]}"
         )
     return result
+
+
+def install_in_hub_cache(hf_home: Path, repo_id: str, files: Path, revision: str = "0" * 40) -> None:
+    """Lay files out exactly as huggingface_hub caches a downloaded model repo."""
+    repo_dir = hf_home / "hub" / f"models--{repo_id.replace('/', '--')}"
+    shutil.copytree(files, repo_dir / "snapshots" / revision)
+    (repo_dir / "refs").mkdir()
+    (repo_dir / "refs" / "main").write_text(revision)
 
 
 @pytest.fixture

@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(evaluate, default_split="test")
     evaluate.add_argument("--trials", type=int, default=100)
     evaluate.add_argument("--policy.path", dest="policy_path", help="gc_dp3 checkpoint (pretrained_model folder)")
-    evaluate.add_argument("--goal-policy.path", dest="goal_policy_path", help="taxdpd checkpoint (pretrained_model folder)")
+    evaluate.add_argument("--goal-policy.path", dest="goal_policy_path", help="taxdpd goal predictor: shipped name, checkpoint folder or Hub id")
     evaluate.add_argument("--ground-truth-goals", action="store_true", help="also run gc_dp3 on a ground-truth goal")
     evaluate.add_argument("--num-samples", dest="num_goal_samples", type=int, default=10, help="K goals sampled per scene")
     evaluate.add_argument("--goal-threshold", type=float, default=0.5, help="RMSE (m) for coverage@K / precision@K")

@@ -133,10 +133,10 @@ def _outcome(episode: Episode) -> dict:
 
 
 def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int) -> np.ndarray:
-    """K goal clouds (K, N, 3) from a `taxdpd` checkpoint for one scene."""
-    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+    """K goal clouds (K, N, 3) from a `taxdpd` goal predictor (shipped name, folder or Hub id) for one scene."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
-    predictor = TaxDPDPolicy.from_pretrained(path).eval()
+    predictor = load_goal_predictor(path)
     with torch.inference_mode():
         samples = predictor.sample_goals(
             torch.from_numpy(cloth).float()[None], torch.from_numpy(hangers).float()[None], num_samples

@@ -1,0 +1,87 @@
+"""Goal predictors by name: the small checkpoints shipped inside the package first, then folders and Hub ids.
+
+A shipped predictor is a `lerobot_taxdpd/pretrained/<name>/` folder written by `save_pretrained` (config,
+safetensors weights, model card, `metrics.json` with its measured success, processors), so a name works
+offline on a fresh install. Anything else is handed to `TaxDPDPolicy.from_pretrained`: a local checkpoint
+folder, or a Hub repo id resolved by huggingface_hub (its cache and `HF_HUB_OFFLINE=1` are respected).
+
+    python -m lerobot_taxdpd.goal_predictors list               # names, tasks and measured metrics
+    python -m lerobot_taxdpd.goal_predictors path mug_easyrack  # a folder for `--policy.path=...`
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lerobot_taxdpd.schema import METRICS_FILE
+
+SHIPPED_DIR = Path(__file__).parent / "pretrained"
+
+
+def _shipped() -> dict[str, Path]:
+    if not SHIPPED_DIR.is_dir():
+        return {}
+    return {p.name: p for p in sorted(SHIPPED_DIR.iterdir()) if (p / "config.json").is_file()}
+
+
+def list_goal_predictors() -> dict[str, dict]:
+    """Shipped names -> their `metrics.json` (task, training command, held-out success, errors)."""
+    listing = {}
+    for name, folder in _shipped().items():
+        metrics = folder / METRICS_FILE
+        listing[name] = json.loads(metrics.read_text()) if metrics.is_file() else {}
+    return listing
+
+
+def resolve_goal_predictor(name_or_path: str | Path) -> str:
+    """A shipped name, an existing folder, or a Hub repo id ('owner/name') -> what `from_pretrained` takes."""
+    text = str(name_or_path)
+    shipped = _shipped()
+    if text in shipped:
+        return str(shipped[text])
+    path = Path(text).expanduser()
+    if path.is_dir():
+        if not (path / "config.json").is_file():
+            raise FileNotFoundError(f"{path}: not a taxdpd checkpoint (no config.json); pass its pretrained_model folder")
+        return str(path)
+    parts = text.split("/")
+    if len(parts) == 2 and all(parts):
+        return text
+    known = ", ".join(shipped) or "none (this install ships no checkpoints)"
+    raise ValueError(f"unknown goal predictor {text!r}: not a shipped name, a checkpoint folder or a Hub repo id 'owner/name'; shipped names: {known}")
+
+
+def load_goal_predictor(name_or_path: str | Path, **kwargs):
+    """A ready `TaxDPDPolicy` (eval mode) for a shipped name, a checkpoint folder or a Hub repo id."""
+    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+
+    policy = TaxDPDPolicy.from_pretrained(resolve_goal_predictor(name_or_path), **kwargs)
+    return policy.eval()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m lerobot_taxdpd.goal_predictors", description=__doc__.split("\n\n")[0])
+    verbs = parser.add_subparsers(dest="verb", required=True)
+    verbs.add_parser("list", help="shipped names with their measured metrics")
+    path = verbs.add_parser("path", help="the checkpoint folder or Hub id a name resolves to")
+    path.add_argument("name")
+    args = parser.parse_args(argv)
+    if args.verb == "path":
+        try:
+            print(resolve_goal_predictor(args.name))
+        except (ValueError, FileNotFoundError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        return 0
+    for name, metrics in list_goal_predictors().items():
+        success = metrics.get("success", {})
+        figures = f"success {success['success_rate']:.0%} over {success['trials']} held-out trials" if success else "not evaluated"
+        print(f"{name:<24} {metrics.get('task', '?'):<24} {figures}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,72 @@
+"""Goal predictors by name: shipped checkpoints, checkpoint folders and Hub ids (offline cache), and the
+errors a user sees for anything else."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from conftest import install_in_hub_cache, run_cli
+from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, list_goal_predictors, load_goal_predictor
+from lerobot_taxdpd.goal_predictors import SHIPPED_DIR, main, resolve_goal_predictor
+
+
+def _saved_policy(folder, metrics=None) -> TaxDPDPolicy:
+    torch.manual_seed(0)
+    config = TaxDPDConfig.for_point_clouds(16, 32, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu")
+    policy = TaxDPDPolicy(config)
+    policy.metrics = metrics or {}
+    policy.save_pretrained(folder)
+    return policy
+
+
+def test_a_checkpoint_folder_loads_and_a_folder_without_config_is_refused(tmp_path):
+    policy = _saved_policy(tmp_path / "model", {"task": "slots"})
+    loaded = load_goal_predictor(tmp_path / "model")
+    assert not loaded.training and loaded.metrics == {"task": "slots"}
+    for name, tensor in policy.state_dict().items():
+        assert torch.equal(tensor, loaded.state_dict()[name]), name
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match="no config.json"):
+        load_goal_predictor(tmp_path / "empty")
+
+
+def test_a_hub_id_resolves_through_the_offline_cache(tmp_path, hf_home):
+    _saved_policy(tmp_path / "model", {"rmse_mm": 2.0})
+    install_in_hub_cache(hf_home, "taxdpd-tests/by-name", tmp_path / "model")
+    assert load_goal_predictor("taxdpd-tests/by-name").metrics == {"rmse_mm": 2.0}
+
+
+def test_unknown_names_list_the_shipped_ones():
+    with pytest.raises(ValueError, match="unknown goal predictor 'no_such_task'.*shipped names") as error:
+        resolve_goal_predictor("no_such_task")
+    for name in list_goal_predictors():
+        assert name in str(error.value)
+
+
+def test_command_line_lists_names_and_resolves_paths(tmp_path, capsys):
+    _saved_policy(tmp_path / "model")
+    assert main(["path", str(tmp_path / "model")]) == 0
+    assert capsys.readouterr().out.strip() == str(tmp_path / "model")
+    assert main(["path", "no_such_task"]) == 1
+    assert "unknown goal predictor" in capsys.readouterr().err
+    listing = run_cli("python", "-m", "lerobot_taxdpd.goal_predictors", "list").stdout
+    assert all(name in listing for name in list_goal_predictors())
+
+
+@pytest.mark.parametrize("name", sorted(list_goal_predictors()))
+def test_every_shipped_predictor_loads_by_name_and_states_its_measured_metrics(name):
+    folder = SHIPPED_DIR / name
+    assert (folder / "model.safetensors").stat().st_size < 8 * 2**20, "shipped checkpoints must stay small"
+    assert (folder / "README.md").is_file() and (folder / "policy_preprocessor.json").is_file()
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["task"] == name and "lerobot-train" in metrics["training_command"]
+    assert 0.0 <= metrics["success"]["success_rate"] <= 1.0 and metrics["success"]["trials"] >= 100
+    policy = load_goal_predictor(name)
+    shapes = policy.config.input_features
+    n_o, n_s = shapes["observation.pointcloud.object"].shape[0], shapes["observation.pointcloud.scene"].shape[0]
+    generator = torch.Generator().manual_seed(0)
+    goals = policy.sample_goals(torch.rand(1, n_o, 3) * 0.05, torch.rand(1, n_s, 3) * 0.3, 2, generator=generator)
+    assert goals.shape == (1, 2, n_o, 3) and bool(torch.isfinite(goals).all())
