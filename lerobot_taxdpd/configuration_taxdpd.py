@@ -38,8 +38,9 @@ SAMPLERS = ("ddim", "ddpm")
 class TaxDPDConfig(PreTrainedConfig):
     # ---- inputs / outputs
     n_obs_steps: int = 1
-    # Points the network sees; larger dataset clouds are reduced by farthest point sampling (same indices
-    # for object and goal, so correspondence survives).
+    # Points the network sees. Larger clouds are reduced by farthest point sampling: in training with the same
+    # indices for object and goal (correspondence survives), at inference deterministically, with the
+    # predicted motion lifted back to every input point (exact for rigid placements).
     num_object_points: int = 512
     num_scene_points: int = 1024
     # Point clouds must keep one isotropic scale and one origin: never normalise them per axis.

@@ -87,6 +87,33 @@ def gather_points(points: Tensor, indices: Tensor) -> Tensor:
     return out.reshape(*indices.shape, points.shape[-1])
 
 
+def nearest_indices(points: Tensor, anchors: Tensor, k: int = 1) -> Tensor:
+    """Indices (B, N, k) of the k anchors (B, n, 3) nearest to each point (B, N, 3), nearest first."""
+    return torch.cdist(points, anchors).topk(k, dim=-1, largest=False).indices
+
+
+def lift_point_motion(points: Tensor, anchors: Tensor, anchor_goals: Tensor, num_neighbors: int = 8) -> Tensor:
+    """Carry the predicted motion of anchor points to every point of the cloud they were sampled from.
+
+    points (B, N, 3), anchors (B, n, 3), anchor_goals (B, K, n, 3) -> goals (B, K, N, 3). Each point's goal
+    is the least-squares affine map of its nearest anchors onto their goals, evaluated at the point: a
+    fixed linear combination of those goals whose weights sum to one and reproduce any affine motion, so
+    rigid placements are lifted exactly and deformations are followed locally. The fit is the minimum-norm
+    least-squares solution, so flat (coplanar) neighbourhoods, as depth cameras see faces, stay exact too.
+    """
+    b, k_samples, n, _ = anchor_goals.shape
+    k = min(num_neighbors, n)
+    neighbours = nearest_indices(points, anchors, k)  # (B, N, k)
+    offsets = (gather_points(anchors, neighbours) - points.unsqueeze(2)).double()  # (B, N, k, 3)
+    offsets = offsets / offsets.square().sum(-1).mean(-1).sqrt().clamp_min(1e-12)[..., None, None]  # unit size
+    design = torch.cat([offsets, torch.ones_like(offsets[..., :1])], -1)  # (B, N, k, 4)
+    weights = torch.linalg.pinv(design, rtol=1e-6)[..., 3, :].to(anchor_goals.dtype)  # (B, N, k): the intercept
+    per_sample = neighbours.unsqueeze(1).expand(b, k_samples, *neighbours.shape[1:]).reshape(b * k_samples, -1, k)
+    gathered = gather_points(anchor_goals.reshape(b * k_samples, n, 3), per_sample)  # (B*K, N, k, 3)
+    lifted = (weights.repeat_interleave(k_samples, 0).unsqueeze(-1) * gathered).sum(2)
+    return lifted.reshape(b, k_samples, points.shape[1], 3)
+
+
 # ------------------------------------------------------------------------------------------- rotations
 def skew(v: Tensor) -> Tensor:
     """(..., 3) -> (..., 3, 3) cross-product matrices."""

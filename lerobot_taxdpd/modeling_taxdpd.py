@@ -22,7 +22,13 @@ from torch import Tensor, nn
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot_taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_z_rotation
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.geometry import estimate_rigid_transform, gather_points
+from lerobot_taxdpd.geometry import (
+    estimate_rigid_transform,
+    farthest_point_sample,
+    gather_points,
+    lift_point_motion,
+    nearest_indices,
+)
 from lerobot_taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.model.parameterizations import randn_like
@@ -180,16 +186,21 @@ class TaxDPDPolicy(PreTrainedPolicy):
         eta = {"ddim": 0.0, "ddpm": 1.0}[sampler or self.config.sampler]
         scale = self._point_scale(object_points)
         origin = scene_points.mean(1, keepdim=True)
+        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
+        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         with self._autocast():
             goals = self.model.sample(
-                (object_points - origin) * scale,
-                (scene_points - origin) * scale,
+                (model_object - origin) * scale,
+                (model_scene - origin) * scale,
                 num_samples,
                 steps,
                 eta=eta,
                 generator=generator,
             )
-        return goals.float() / scale + origin.unsqueeze(1)
+        goals = goals.float() / scale + origin.unsqueeze(1)
+        if model_object.shape[1] != object_points.shape[1]:
+            goals = lift_point_motion(object_points, model_object, goals)
+        return goals
 
     @torch.no_grad()
     def predict_poses(
@@ -213,17 +224,38 @@ class TaxDPDPolicy(PreTrainedPolicy):
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
         scale = self._point_scale(object_points)
         origin = scene_points.mean(1, keepdim=True)
+        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
+        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         with self._autocast():
             weights, means = self.model.placement_distribution(
-                (object_points - origin) * scale, (scene_points - origin) * scale
+                (model_object - origin) * scale, (model_scene - origin) * scale
             )
-        return weights.float(), means.float() / scale + origin
+        weights, means = weights.float(), means.float() / scale + origin
+        if model_scene.shape[1] != scene_points.shape[1]:
+            # Each component of the reduced scene stands for the input points nearest to it: they share its
+            # mean and split its weight, so the answer keeps one entry per input scene point and sums to one.
+            nearest = nearest_indices(scene_points, model_scene).squeeze(-1)  # (B, N_S)
+            counts = torch.zeros_like(weights).scatter_add_(1, nearest, torch.ones_like(nearest, dtype=weights.dtype))
+            weights = weights.gather(1, nearest) / counts.gather(1, nearest)
+            means = gather_points(means, nearest)
+        return weights, means
 
     # ---------------------------------------------------------------------------------------- helpers
     def _autocast(self):
         if not self.config.use_amp:
             return contextlib.nullcontext()
         return torch.autocast(device_type=next(self.parameters()).device.type, dtype=torch.bfloat16)
+
+    @staticmethod
+    def _at_model_resolution(points: Tensor, num_points: int) -> Tensor:
+        """Clouds larger than the network's point count, reduced by (deterministic) farthest point sampling.
+
+        The network is trained at `num_*_points`; feeding it denser clouds would change every PointNet++
+        neighbourhood and cost attention quadratically, so inference sees the same resolution as training.
+        """
+        if points.shape[1] <= num_points:
+            return points
+        return gather_points(points, farthest_point_sample(points, num_points))
 
     def _point_scale(self, object_points: Tensor) -> float:
         if self.config.point_scale is not None:

@@ -11,6 +11,7 @@ from lerobot_taxdpd.geometry import (
     farthest_point_indices,
     farthest_point_sample,
     fit_rigid_transform,
+    lift_point_motion,
     make_transform,
     matrix_to_rotation_6d,
     quaternion_xyzw_to_matrix,
@@ -125,3 +126,18 @@ def test_quaternion_xyzw_and_6d_rotations():
     )
     rotations = random_axis_angle_rotation(8, 2.0, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     assert torch.allclose(rotation_6d_to_matrix(matrix_to_rotation_6d(rotations)), rotations, atol=1e-12)
+
+
+def test_lifting_anchor_motion_is_exact_for_rigid_placements_even_on_flat_clouds():
+    g = torch.Generator().manual_seed(3)
+    solid = torch.rand(2, 400, 3, generator=g, dtype=torch.float64) * 0.05
+    flat = solid.clone()
+    flat[..., 2] = 0.0  # one face seen by a depth camera: every neighbourhood is coplanar
+    for points in (solid, flat):
+        anchors = points[:, farthest_point_sample(points[0], 64)]
+        transforms = torch.stack([random_transform(g) for _ in range(6)]).reshape(2, 3, 4, 4)
+        anchor_goals = torch.stack([torch.stack([transform_points(t, a) for t in ts]) for a, ts in zip(anchors, transforms)])
+        expected = torch.stack([torch.stack([transform_points(t, p) for t in ts]) for p, ts in zip(points, transforms)])
+        lifted = lift_point_motion(points, anchors, anchor_goals)
+        assert lifted.shape == (2, 3, 400, 3)
+        torch.testing.assert_close(lifted, expected, atol=1e-6, rtol=0)

@@ -58,6 +58,19 @@ def test_sampling_is_reproducible_with_a_generator_and_translation_equivariant_i
     assert torch.allclose(moved - shift, first, atol=1e-3)  # works in the scene's own frame
 
 
+def test_clouds_denser_than_the_network_are_reduced_and_answered_for_every_point():
+    policy = tiny_policy()  # the network sees N_O / N_S points
+    g = torch.Generator().manual_seed(5)
+    obj, scene = torch.rand(1, 4 * N_O, 3, generator=g) * 0.1, torch.rand(1, 3 * N_S, 3, generator=g)
+    goals = policy.sample_goals(obj, scene, 3, generator=torch.Generator().manual_seed(0))
+    assert goals.shape == (1, 3, 4 * N_O, 3) and bool(torch.isfinite(goals).all())
+    weights, means = policy.placement_distribution(obj, scene)
+    assert weights.shape == (1, 3 * N_S) and means.shape == (1, 3 * N_S, 3)
+    torch.testing.assert_close(weights.sum(-1), torch.ones(1))
+    poses = policy.predict_poses(obj, scene, 2, generator=torch.Generator().manual_seed(0))
+    assert poses.shape == (1, 2, 4, 4)
+
+
 @pytest.mark.parametrize(
     ("obj", "scene", "message"),
     [
