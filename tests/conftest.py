@@ -24,6 +24,28 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 BIN = Path(sys.executable).parent
 
+#: `lerobot-train` flags for a taxdpd model small enough to train a few steps in seconds.
+TINY_TAXDPD = [
+    "--policy.hidden_dim=16",
+    "--policy.num_blocks=1",
+    "--policy.num_heads=2",
+    "--policy.max_neighbors=16",
+    "--policy.num_inference_steps=2",
+    "--policy.device=cpu",
+]
+#: The same for gc_dp3.
+TINY_GC_DP3 = [
+    "--policy.type=gc_dp3",
+    "--policy.down_dims=[32,64]",
+    "--policy.point_encoder_dims=[32,32]",
+    "--policy.point_feature_dim=32",
+    "--policy.state_encoder_dims=[32,32]",
+    "--policy.diffusion_step_embed_dim=32",
+    "--policy.scheduler_warmup_steps=20",
+    "--policy.optimizer_lr=1e-3",
+    "--policy.device=cpu",
+]
+
 
 def run_cli(name: str, *args: str, timeout: float = 600, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """Run a console script of this environment (e.g. `lerobot-train`) and fail with its output on error."""

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from conftest import BIN
+from conftest import BIN, TINY_TAXDPD, run_cli
 from convert_fixtures import leftovers, nist_demo, rpdiff_demo, save_nist_npz, save_rpdiff_demo
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -45,7 +45,7 @@ def test_help_explains_layouts_and_the_pickle_risk():
     assert "goal_tf" in nist and "--units" in nist and "--holdout-fraction" in nist
 
 
-def test_convert_prints_summary_and_lerobot_loads_the_result(tmp_path):
+def test_convert_prints_summary_and_lerobot_loads_and_trains_on_the_result(tmp_path):
     root = tmp_path / "out"
     result = convert(
         "rpdiff", "--raw-dir", _rpdiff_dir(tmp_path, 3), "--repo-id", "me/rpdiff_mug_easyrack", "--root", root,
@@ -57,6 +57,12 @@ def test_convert_prints_summary_and_lerobot_loads_the_result(tmp_path):
     dataset = LeRobotDataset("me/rpdiff_mug_easyrack", root=root)
     assert dataset.meta.total_episodes == 3 and list(dataset.meta.episodes["length"]) == [3, 3, 3]
     assert "taxdpd-convert rpdiff --raw-dir" in (root / "README.md").read_text()
+    run_cli(
+        "lerobot-train", "--policy.type=taxdpd", "--dataset.repo_id=me/rpdiff_mug_easyrack", f"--dataset.root={root}",
+        "--policy.push_to_hub=false", "--steps=2", "--batch_size=2", "--num_workers=0", *TINY_TAXDPD,
+        f"--output_dir={tmp_path / 'train'}",
+    )
+    assert (tmp_path / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file()
 
 
 def test_bad_demo_fails_cleanly_and_skip_invalid_lists_it(tmp_path, capsys):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import TINY_GC_DP3, run_cli
 from convert_fixtures import dedo_goal_demo, leftovers, row_indices, save_dedo_goal_demo, write_dedo_rollouts
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -124,6 +125,11 @@ def test_rollouts_become_time_series_without_padding(tmp_path):
         assert bool(item[DONE_KEY]) == last and not bool(item[SUCCESS_KEY])
     card, _ = read_card_info(root)
     assert "unknown" in card.details["next.success"]
+    run_cli(
+        "lerobot-train", *TINY_GC_DP3, "--dataset.repo_id=local/cloth_rollouts", f"--dataset.root={root}",
+        "--policy.push_to_hub=false", "--steps=2", "--batch_size=2", "--num_workers=0", f"--output_dir={tmp_path / 'train'}",
+    )
+    assert (tmp_path / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file()
 
 
 def test_rollouts_marked_successful_on_request(tmp_path):

@@ -14,6 +14,7 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
+from conftest import TINY_GC_DP3 as TINY
 from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
 from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
 from lerobot_taxdpd.schema import (
@@ -30,19 +31,6 @@ from lerobot_taxdpd.schema import (
 POINTS = 32
 FRAMES = 12
 SPEED = 0.05  # metres per step towards the goal's hanger
-TINY = [
-    "--policy.type=gc_dp3",
-    "--policy.down_dims=[32,64]",
-    "--policy.point_encoder_dims=[32,32]",
-    "--policy.point_feature_dim=32",
-    "--policy.state_encoder_dims=[32,32]",
-    "--policy.diffusion_step_embed_dim=32",
-    "--policy.scheduler_warmup_steps=20",
-    "--policy.optimizer_lr=1e-3",
-    "--policy.device=cpu",
-]
-
-
 def write_goal_side_dataset(root, episodes: int = 4):
     """Hangers at x = -2 and x = +2; each episode's goal hangs the cloth on one of them (alternating).
 

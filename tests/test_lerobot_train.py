@@ -12,18 +12,9 @@ from lerobot.policies.factory import make_pre_post_processors
 
 from lerobot_taxdpd import TaxDPDPolicy
 from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
+from conftest import TINY_TAXDPD as TINY
 from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.synthetic import make_slot_scene, write_slot_dataset
-
-TINY = [
-    "--policy.hidden_dim=16",
-    "--policy.num_blocks=1",
-    "--policy.num_heads=2",
-    "--policy.max_neighbors=16",
-    "--policy.num_inference_steps=2",
-    "--policy.device=cpu",
-]
-
 
 @pytest.fixture(scope="module")
 def slot_dataset(tmp_path_factory):
