@@ -1,11 +1,11 @@
 """Few-step sampling against the full 100-step sampler on the two-slot learning task.
 
-Evaluates one trained checkpoint (default: the one `taxdpd-demo` writes) with ancestral DDPM over all
+Evaluates one trained checkpoint (default: the one `taxdpd-demo --synthetic` writes) with ancestral DDPM over all
 100 steps and with DDIM at fewer steps: winner-take-all RMSE over K samples, translation and rotation
 errors, coverage, and the latency of one call for the whole batch of held-out scenes. Prints the machine
 and writes JSON.
 
-    taxdpd-demo && python benchmarks/sampler_quality.py       # results/sampler_quality.json
+    taxdpd-demo --synthetic && python benchmarks/sampler_quality.py       # results/sampler_quality.json
     python benchmarks/sampler_quality.py --checkpoint PATH --scenes 32 --samples 10
 """
 
@@ -28,7 +28,7 @@ SAMPLERS = (("ddpm", 100), ("ddim", 100), ("ddim", 20), ("ddim", 10), ("ddim", 5
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", type=Path, default=Path("results/demo/train/checkpoints/last/pretrained_model"))
+    parser.add_argument("--checkpoint", type=Path, default=Path("results/demo_slots/train/checkpoints/last/pretrained_model"))
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--samples", type=int, default=10)
     parser.add_argument("--yaw-range", type=float, default=None, help="default: the demo's, from its report")

@@ -1,8 +1,8 @@
-"""The built-in demo: make a two-slot placement dataset, train TAX-DPD with `lerobot-train`, sample goals on
-held-out scenes, and write metrics and figures. Runs offline on a CPU in a few minutes.
+"""Training from scratch in a few minutes: make a synthetic two-slot placement dataset, train TAX-DPD with
+`lerobot-train`, sample goals on held-out scenes, and write metrics and figures. Offline, CPU.
 
-    taxdpd-demo                         # results/demo/{metrics.json, goals_*.png, gmm_*.png, train/...}
-    taxdpd-demo --steps 2000 --yaw-range 3.14 --output results/demo_full
+    taxdpd-demo --synthetic             # results/demo_slots/{metrics.json, goals_*.png, gmm_*.png, train/...}
+    taxdpd-demo --synthetic --steps 2000 --yaw-range 3.14 --output results/demo_full
 """
 
 from __future__ import annotations
@@ -25,11 +25,14 @@ MARKER = "metrics.json"
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="taxdpd-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--output", type=Path, default=Path("results/demo"), help="folder for data, checkpoint and report")
+    parser = argparse.ArgumentParser(
+        prog="taxdpd-demo --synthetic", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--output", type=Path, default=Path("results/demo_slots"), help="folder for data, checkpoint and report")
     parser.add_argument("--episodes", type=int, default=128, help="training demos (2 point samplings each)")
     parser.add_argument("--steps", type=int, default=800, help="lerobot-train steps")
     parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (cosine schedule, 20 warm-up steps)")
     parser.add_argument("--yaw-range", type=float, default=0.5, help="slot and start yaws lie in +-this (radians)")
     parser.add_argument("--hidden-dim", type=int, default=48)
     parser.add_argument("--num-blocks", type=int, default=2)
@@ -41,16 +44,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def prepare_output(output: Path) -> None:
-    """Reuse a folder from an earlier demo run; refuse to clobber anything else."""
+def prepare_output(output: Path, marker: str = MARKER) -> None:
+    """Reuse a folder from an earlier run (recognised by its `marker` file); refuse to clobber anything else."""
     if output.exists() and any(output.iterdir()):
-        if not (output / MARKER).exists():
+        if not (output / marker).exists():
             raise SystemExit(f"{output} exists and is not an earlier demo's output; choose another --output")
         shutil.rmtree(output)
     output.mkdir(parents=True, exist_ok=True)
 
 
-def train(args: argparse.Namespace, dataset: Path) -> tuple[Path, list[str], float]:
+def train(
+    args: argparse.Namespace, dataset: Path, save_freq: int | None = None, use_amp: bool = False
+) -> tuple[Path, list[str], float]:
+    """Run `lerobot-train` on the slot dataset with the demo's recipe; returns (last checkpoint, command, seconds).
+
+    `save_freq` keeps intermediate checkpoints (default: only the last); `use_amp` trains under bf16 autocast.
+    """
     command = [
         sys.executable,
         "-m",
@@ -64,11 +73,12 @@ def train(args: argparse.Namespace, dataset: Path) -> tuple[Path, list[str], flo
         f"--policy.num_blocks={args.num_blocks}",
         "--policy.num_heads=4",
         "--policy.max_neighbors=32",
-        "--policy.optimizer_lr=2e-3",
+        f"--policy.optimizer_lr={args.lr}",
         "--policy.scheduler_warmup_steps=20",
         f"--batch_size={args.batch_size}",
         f"--steps={args.steps}",
-        f"--save_freq={args.steps}",
+        f"--policy.use_amp={str(use_amp).lower()}",
+        f"--save_freq={save_freq or args.steps}",
         "--log_freq=100",
         "--num_workers=0",
         f"--seed={args.seed}",

@@ -2,6 +2,7 @@
 
     generate  scripted demonstrations -> a LeRobot v3.0 goal-prediction dataset
     eval      a goal predictor on held-out trials -> JSON report and PNG figures
+    pretrain  generate + lerobot-train + eval, then save the checkpoint with its metrics (a shipped predictor)
 
 `--task cloth_hang` is handed, with the whole command line, to the cloth task's own command line.
 """
@@ -47,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = verbs.add_parser("eval", help="evaluate a goal predictor on held-out trials")
     evaluate.add_argument("--task", required=True, choices=tasks)
     source = evaluate.add_mutually_exclusive_group(required=True)
-    source.add_argument("--policy.path", dest="policy_path", help="TAX-DPD checkpoint folder or Hub id")
+    source.add_argument(
+        "--policy.path", dest="policy_path", help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id"
+    )
     source.add_argument(
         "--predictor",
         help="'oracle' (ground truth, checks the benchmark itself) or 'package.module:factory' returning an "
@@ -61,7 +64,33 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--figures", type=int, default=3, help="trials to draw (default: 3)")
     evaluate.add_argument("--oracle-error-mm", type=float, default=0.0, help="oracle only: translation error to add")
     evaluate.add_argument("--oracle-error-deg", type=float, default=0.0, help="oracle only: rotation error to add")
+
+    pretrain = verbs.add_parser("pretrain", help="demos, lerobot-train, held-out eval, and a packaged checkpoint")
+    pretrain.add_argument("--task", required=True, choices=task_names())
+    pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
+    pretrain.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
+    pretrain.add_argument("--config", type=Path, default=None, help="lerobot-train config (default: configs/taxdpd_cpu.json)")
+    pretrain.add_argument("--trials", type=int, default=100, help="held-out evaluation trials (default: 100)")
+    pretrain.add_argument("--num-samples", type=int, default=10, help="goals sampled per trial, K (default: 10)")
+    pretrain.add_argument("--output", type=Path, default=None, help="work folder (default: results/pretrain/<task>)")
+    pretrain.add_argument("--ship", type=Path, default=None, help="save the evaluated checkpoint as <SHIP>/<task>")
     return parser
+
+
+def _pretrain(args: argparse.Namespace) -> int:
+    from lerobot_taxdpd.sim.pretrain import CPU_RECIPE, pretrain
+
+    pretrain(
+        args.task,
+        args.output or Path("results/pretrain") / args.task,
+        episodes=args.episodes,
+        steps=args.steps,
+        config_path=args.config or CPU_RECIPE,
+        trials=args.trials,
+        num_samples=args.num_samples,
+        ship=args.ship,
+    )
+    return 0
 
 
 def _generate(args: argparse.Namespace, argv: list[str]) -> int:
@@ -137,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
         return cloth_main(argv)
     args = build_parser().parse_args(argv)
     try:
-        return _generate(args, argv) if args.verb == "generate" else _evaluate(args)
+        verbs = {"generate": lambda: _generate(args, argv), "eval": lambda: _evaluate(args), "pretrain": lambda: _pretrain(args)}
+        return verbs[args.verb]()
     except (ValueError, FileExistsError, FileNotFoundError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
