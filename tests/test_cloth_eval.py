@@ -13,7 +13,7 @@ import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
-from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, make_gc_dp3_pre_post_processors
+from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, load_goal_predictor, make_gc_dp3_pre_post_processors
 from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
 from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
 from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
@@ -70,7 +70,7 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     out = tmp_path / "eval"
     argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--plots", "1"]
     argv += ["--policy.path", str(gc_dp3), "--goal-policy.path", str(taxdpd), "--ground-truth-goals"]
-    assert main([*argv, "--num-samples", "3", "--output", str(out)]) == 0
+    assert main([*argv, "--num-samples", "3", "--output", str(out), "--ship", str(tmp_path / "shipped")]) == 0
     summary = json.loads((out / "eval_cloth_hang.json").read_text())
     assert summary["trials"] == 2 and summary["workers"] == 2 and summary["config"]["split"] == "test"
     assert summary["machine"]["cpu_count"] >= 1 and summary["machine"]["torch_threads"] >= 1
@@ -91,6 +91,11 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     assert [p.name for p in plots] == ["test_0008.png"]
     assert plots[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert summary["median_seconds_per_trial"] > 0
+    shipped = load_goal_predictor(tmp_path / "shipped" / "cloth_hang")
+    assert shipped.metrics["task"] == "cloth_hang" and shipped.metrics["success"] == {
+        k: summary["predicted_goal"][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")
+    }
+    assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
 
 
 def test_eval_explains_what_is_missing(checkpoints, tmp_path):

@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--plots", type=int, default=5, help="PNGs for the first N trials")
     evaluate.add_argument("--output", type=Path, default=Path("outputs/eval/cloth_hang"))
     evaluate.add_argument("--device", default="cpu")
+    evaluate.add_argument("--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang")
     return parser
 
 
@@ -100,4 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(json.dumps({k: v for k, v in summary.items() if k != "per_trial"}, indent=2))
     print(f"per-trial results: {args.output / 'eval_cloth_hang.json'}")
+    if args.ship is not None:
+        from lerobot_taxdpd.sim.cloth.evaluation import ship_goal_predictor
+
+        print(f"shipped as {ship_goal_predictor(summary, args.ship)}")
     return 0

@@ -11,6 +11,7 @@ depend on the number of workers.
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import time
 from collections.abc import Callable, Iterator
@@ -23,7 +24,7 @@ import torch
 
 from lerobot_taxdpd.metrics import coverage_precision, success_summary
 from lerobot_taxdpd.schema import GOAL_CLOUD_KEY
-from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
+from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
 from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
@@ -199,9 +200,15 @@ def evaluate(
             "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
-    for name, path in (("policy.path", policy_path), ("goal-policy.path", goal_policy_path)):
-        if path and not (Path(path) / "config.json").is_file():
-            raise FileNotFoundError(f"--{name}: {path} has no config.json (expected a checkpoint's pretrained_model folder)")
+    if policy_path and not (Path(policy_path) / "config.json").is_file():
+        raise FileNotFoundError(f"--policy.path: {policy_path} has no config.json (expected a checkpoint's pretrained_model folder)")
+    if goal_policy_path:
+        from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
+
+        try:
+            goal_policy_path = resolve_goal_predictor(goal_policy_path)
+        except (ValueError, FileNotFoundError) as error:
+            raise type(error)(f"--goal-policy.path: {error}") from error
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     config = {
@@ -222,3 +229,39 @@ def evaluate(
     summary = summarise(list(run_trials(requests, workers)), config, workers)
     write_report(summary, output / "eval_cloth_hang.json")
     return summary
+
+
+def ship_goal_predictor(summary: dict, destination: Path) -> Path:
+    """Save the evaluated goal predictor as a shipped `cloth_hang` predictor, with this evaluation as its
+    metrics (success executed by the gc_dp3 checkpoint of the run, coverage and precision RMSE)."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.sim.pretrain import save_shipped
+
+    config = summary["config"]
+    if not config["goal_policy_path"] or "predicted_goal" not in summary:
+        raise ValueError("--ship: needs --goal-policy.path and --policy.path (success with the predicted goal)")
+    checkpoint = Path(config["goal_policy_path"])
+    train_config = checkpoint / "train_config.json"
+    trained = json.loads(train_config.read_text()) if train_config.is_file() else {}
+    rates = {name: {k: summary[name][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
+             for name in ("predicted_goal", "ground_truth_goal") if name in summary}
+    policy = load_goal_predictor(checkpoint)
+    policy.metrics = {
+        "task": "cloth_hang",
+        "description": TASK_DESCRIPTION,
+        "data": f"dataset {trained.get('dataset', {}).get('repo_id', '?')} ({trained.get('dataset', {}).get('root', '?')})",
+        "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run)",
+        "training_steps": trained.get("steps"),
+        "batch_size": trained.get("batch_size"),
+        "evaluation": f"{summary['trials']} held-out scenes (split {config['split']}, seeds {config['seeds']}), "
+        f"K = {config['num_goal_samples']}, executed by gc_dp3 {config['policy_path']}",
+        "license": "apache-2.0",
+        "success": rates["predicted_goal"],
+        **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
+        **summary.get("goal_metrics", {}),
+        "coverage_threshold": config["goal_threshold_m"],
+        "seconds_per_trial": summary["median_seconds_per_trial"],
+    }
+    shipped = Path(destination) / "cloth_hang"
+    save_shipped(policy, checkpoint, shipped)
+    return shipped
