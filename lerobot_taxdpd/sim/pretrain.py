@@ -48,7 +48,7 @@ def _relative(path: Path) -> Path:
 
 
 def _lerobot_train(command: list[str]) -> float:
-    """Run lerobot-train as LeRobot's own console script; returns its wall time."""
+    """Run LeRobot's own training entry point (what the `lerobot-train` script calls); returns its wall time."""
     started = time.perf_counter()
     subprocess.run([sys.executable, "-m", "lerobot.scripts.lerobot_train", *command[1:]], check=True)
     return time.perf_counter() - started
