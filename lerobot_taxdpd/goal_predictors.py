@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, metrics in list_goal_predictors().items():
         success = metrics.get("success", {})
         figures = f"success {success['success_rate']:.0%} over {success['trials']} held-out trials" if success else "not evaluated"
-        print(f"{name:<24} {metrics.get('task', '?'):<24} {figures}")
+        print(f"{name:<20} {figures:<40} {metrics.get('description', '')}")
     return 0
 
 
