@@ -114,7 +114,8 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.sim.harness import evaluate, write_report
-    from lerobot_taxdpd.sim.predictors import OraclePredictor, load_policy, load_predictor
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.sim.predictors import OraclePredictor, load_predictor
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
@@ -130,7 +131,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         predictor = OraclePredictor(trials, args.oracle_error_mm / 1000, args.oracle_error_deg, seed=args.seed)
     elif args.policy_path:
         try:
-            predictor = load_policy(args.policy_path)
+            predictor = load_goal_predictor(args.policy_path)
         except (OSError, ValueError) as error:
             raise ValueError(
                 f"--policy.path {args.policy_path}: not a loadable TAX-DPD checkpoint ({error})"

@@ -1,9 +1,9 @@
 """What the evaluation harness evaluates: any goal predictor with `sample_goals` or `predict_poses`.
 
 The harness needs only `sample_goals`; a predictor that answers with poses alone (an SE(3) baseline) is
-wrapped by `as_goal_predictor`, which moves the object cloud by each pose. The harness turns each sampled goal cloud into a pose with RANSAC-SVD
-itself (as the robot would, and as the lerobot-eval env does), so the pose it executes and the cloud it
-scores are always the same prediction. A predictor may also offer `placement_distribution` (TAX-DPD's
+wrapped by `as_goal_predictor`, which moves the object cloud by each pose. The harness turns each sampled
+goal cloud into a pose with RANSAC-SVD itself (as the robot would, and as the lerobot-eval env does), so
+the pose it executes and the cloud it scores are always the same prediction. A predictor may also offer `placement_distribution` (TAX-DPD's
 Dense GMM), which the harness then plots.
 
 `OraclePredictor` is the benchmark's own reference: it answers with the ground truth of the trials it
@@ -112,13 +112,6 @@ class OraclePredictor:
                 raise ValueError("OraclePredictor: object_points do not belong to any trial it was built from")
             batch.append(np.stack([self._perturb(goals[k % len(goals)]) for k in range(num_samples)]))
         return torch.from_numpy(np.stack(batch).astype(np.float32))
-
-
-def load_policy(name_or_path: str):
-    """A trained TAX-DPD policy from a shipped name, a checkpoint folder or a Hub id (imported when asked for)."""
-    from lerobot_taxdpd.goal_predictors import load_goal_predictor
-
-    return load_goal_predictor(name_or_path)
 
 
 def load_predictor(spec: str) -> GoalPredictor:
