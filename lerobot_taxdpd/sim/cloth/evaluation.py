@@ -11,6 +11,7 @@ depend on the number of workers.
 
 from __future__ import annotations
 
+import functools
 import json
 import multiprocessing
 import time
@@ -109,7 +110,9 @@ def run_trial(request: TrialRequest) -> dict:
             result["ground_truth_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, goals[0])))
         predicted = None
         if request.goal_policy_path:
-            predicted = sample_goals(request.goal_policy_path, start_cloud, hanger_cloud, request.num_goal_samples)
+            predicted = sample_goals(
+                request.goal_policy_path, start_cloud, hanger_cloud, request.num_goal_samples, request.seed
+            )
             result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
             if executor is not None:
                 torch.manual_seed(request.seed)
@@ -133,14 +136,21 @@ def _outcome(episode: Episode) -> dict:
     }
 
 
-def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int) -> np.ndarray:
-    """K goal clouds (K, N, 3) from a `taxdpd` goal predictor (shipped name, folder or Hub id) for one scene."""
+@functools.lru_cache(maxsize=2)
+def _goal_predictor(path: str):
+    """The goal predictor, loaded once per worker process (it keeps no state between calls)."""
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
-    predictor = load_goal_predictor(path)
+    return load_goal_predictor(path)
+
+
+def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
+    """K goal clouds (K, N, 3) from a `taxdpd` goal predictor (shipped name, folder or Hub id) for one scene,
+    drawn from their own generator so a trial's goals do not depend on what ran before it in the worker."""
     with torch.inference_mode():
-        samples = predictor.sample_goals(
-            torch.from_numpy(cloth).float()[None], torch.from_numpy(hangers).float()[None], num_samples
+        samples = _goal_predictor(path).sample_goals(
+            torch.from_numpy(cloth).float()[None], torch.from_numpy(hangers).float()[None], num_samples,
+            generator=torch.Generator().manual_seed(seed),
         )
     return samples[0].cpu().numpy().astype(np.float64)
 
