@@ -27,6 +27,13 @@ def _shipped() -> dict[str, Path]:
     return {p.name: p for p in sorted(SHIPPED_DIR.iterdir()) if (p / "config.json").is_file()}
 
 
+def has_placement_distribution(predictor: object) -> bool:
+    """Whether `predictor` has a Dense GMM to query: a TAX-DPD model trained with `use_gmm=false` keeps the
+    `placement_distribution` method but has no GMM behind it."""
+    config = getattr(predictor, "config", None)
+    return hasattr(predictor, "placement_distribution") and getattr(config, "use_gmm", True)
+
+
 def list_goal_predictors() -> dict[str, dict]:
     """Shipped names -> their `metrics.json` (task, training command, held-out success, errors)."""
     listing = {}

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.goal_predictors import has_placement_distribution
 from lerobot_taxdpd.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
 
 TASK = "put the keyed box into one of the two keyed slots, handle towards the post"
@@ -220,7 +221,7 @@ def evaluate_slot_predictor(
         "rotation_error_deg": float(np.median(rotation)),
         f"coverage@{num_samples}": float(np.mean(coverage)),
     }
-    if hasattr(predictor, "placement_distribution") and getattr(getattr(predictor, "config", None), "use_gmm", True):
+    if has_placement_distribution(predictor):
         weights, means = predictor.placement_distribution(obj, scene)
         mass = []
         for i, s in enumerate(scenes):

@@ -65,7 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--oracle-error-mm", type=float, default=0.0, help="oracle only: translation error to add")
     evaluate.add_argument("--oracle-error-deg", type=float, default=0.0, help="oracle only: rotation error to add")
 
-    pretrain = verbs.add_parser("pretrain", help="demos, lerobot-train, held-out eval, and a packaged checkpoint")
+    pretrain = verbs.add_parser(
+        "pretrain",
+        help="demos, lerobot-train, held-out eval, and a packaged checkpoint",
+        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) is passed on to lerobot-train.",
+    )
     pretrain.add_argument("--task", required=True, choices=task_names())
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
     pretrain.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
@@ -74,10 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain.add_argument("--num-samples", type=int, default=10, help="goals sampled per trial, K (default: 10)")
     pretrain.add_argument("--output", type=Path, default=None, help="work folder (default: results/pretrain/<task>)")
     pretrain.add_argument("--ship", type=Path, default=None, help="save the evaluated checkpoint as <SHIP>/<task>")
+    pretrain.add_argument(
+        "--dataset", type=Path, default=None, help="demonstrations folder, generated if missing (default: <output>/data)"
+    )
     return parser
 
 
-def _pretrain(args: argparse.Namespace) -> int:
+def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
     from lerobot_taxdpd.sim.pretrain import CPU_RECIPE, pretrain
 
     pretrain(
@@ -89,6 +96,8 @@ def _pretrain(args: argparse.Namespace) -> int:
         trials=args.trials,
         num_samples=args.num_samples,
         ship=args.ship,
+        dataset=args.dataset,
+        overrides=overrides,
     )
     return 0
 
@@ -165,9 +174,17 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_taxdpd.sim.cloth.cli import main as cloth_main
 
         return cloth_main(argv)
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    overrides = [arg for arg in unknown if args.verb == "pretrain" and arg.startswith("--policy.") and "=" in arg]
+    if len(overrides) < len(unknown):
+        parser.error(f"unrecognized arguments: {' '.join(arg for arg in unknown if arg not in overrides)}")
     try:
-        verbs = {"generate": lambda: _generate(args, argv), "eval": lambda: _evaluate(args), "pretrain": lambda: _pretrain(args)}
+        verbs = {
+            "generate": lambda: _generate(args, argv),
+            "eval": lambda: _evaluate(args),
+            "pretrain": lambda: _pretrain(args, overrides),
+        }
         return verbs[args.verb]()
     except (ValueError, FileExistsError, FileNotFoundError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)

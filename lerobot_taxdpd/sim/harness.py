@@ -23,6 +23,7 @@ import torch
 from tqdm import tqdm
 
 from lerobot_taxdpd.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.goal_predictors import has_placement_distribution
 from lerobot_taxdpd.metrics import (
     coverage_precision_from_rmse,
     pairwise_rmse,
@@ -140,7 +141,7 @@ def evaluate(
                     )
                 )
             )
-            if hasattr(predictor, "placement_distribution"):
+            if has_placement_distribution(predictor):
                 with torch.inference_mode():
                     weights, means = predictor.placement_distribution(
                         torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]

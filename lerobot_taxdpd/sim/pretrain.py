@@ -16,6 +16,7 @@ import shlex
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from safetensors.torch import load_file, save_file
@@ -28,7 +29,10 @@ from lerobot_taxdpd.sim.trials import make_trial
 CPU_RECIPE = Path(__file__).resolve().parents[2] / "configs" / "taxdpd_cpu.json"
 
 
-def train_command(dataset: Path, repo_id: str, output_dir: Path, config_path: Path, steps: int | None) -> list[str]:
+def train_command(
+    dataset: Path, repo_id: str, output_dir: Path, config_path: Path, steps: int | None, overrides: Sequence[str] = ()
+) -> list[str]:
+    """`lerobot-train` on the recipe in `config_path`; `overrides` are extra `--policy.<field>=<value>` flags."""
     command = [
         "lerobot-train",
         f"--config_path={config_path}",
@@ -36,7 +40,7 @@ def train_command(dataset: Path, repo_id: str, output_dir: Path, config_path: Pa
         f"--dataset.root={dataset}",
         f"--output_dir={output_dir}",
     ]
-    return command + ([f"--steps={steps}"] if steps else [])
+    return command + ([f"--steps={steps}"] if steps else []) + list(overrides)
 
 
 def _relative(path: Path) -> Path:
@@ -74,8 +78,14 @@ def pretrain(
     trials: int,
     num_samples: int,
     ship: Path | None,
+    dataset: Path | None = None,
+    overrides: Sequence[str] = (),
 ) -> dict:
-    """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics."""
+    """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
+
+    `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
+    demonstrations; it is generated only if it does not exist yet.
+    """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
     task = get_task(task_name)
@@ -83,13 +93,13 @@ def pretrain(
     if not config_path.is_file():
         raise FileNotFoundError(f"--config: {config_path} does not exist")
     output = Path(output)
-    dataset, run_dir = output / "data", output / "train"
+    dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
     generate_command = f"python -m lerobot_taxdpd.sim generate --task {task.name} --episodes {episodes} --split train"
     if not (dataset / "meta" / "info.json").is_file():
         print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
         generate_dataset(task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command)
-    command = train_command(dataset, repo_id, run_dir, _relative(config_path), steps)
+    command = train_command(_relative(dataset), repo_id, _relative(run_dir), _relative(config_path), steps, overrides)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
     train_seconds = None
     if not (checkpoint / "model.safetensors").is_file():

@@ -1,0 +1,186 @@
+"""The ablation table: every switch of the paper's ablation study, trained and evaluated under one budget.
+
+Each (task, variant) is one `python -m lerobot_taxdpd.sim pretrain` run with the same demonstrations (shared
+per task), the same recipe (`configs/taxdpd_ablation.json` by default: hidden 32, 2 DiT blocks, 64/128
+points seen by the network, batch 16, 600 steps; about 4 CPU minutes a run), and the same 100 held-out
+trials with K = 10 goals. Finished runs are reused, so an interrupted table resumes where it stopped.
+
+    python benchmarks/ablations.py                       # results/ablations.{json,md}, runs in results/ablations/
+    python benchmarks/ablations.py --jobs 2              # two runs at a time, one torch thread each
+    python benchmarks/ablations.py --tasks insert_ssd --variants full   # any task, any subset of variants
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from lerobot_taxdpd.benchmarking import machine_info, write_json
+from lerobot_taxdpd.sim.tasks import task_names
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Variant -> (the paper's ablation row, lerobot-train flags); the flags are explained in docs/taxdpd.md.
+VARIANTS: dict[str, tuple[str, list[str]]] = {
+    "full": ("TAX-DPD", []),
+    "no_disentangled": ("w/o disentangled point diffusion", ["--policy.disentangled=false"]),
+    "mlp_encoder": ("w/ MLP encodings", ["--policy.encoder=mlp"]),
+    "no_gmm": ("w/o GMM", ["--policy.use_gmm=false"]),
+    "no_reconstruction_embedding": ("w/o recon. embedding", ["--policy.use_reconstruction_embedding=false"]),
+    "no_rotation_noise": ("w/o rot. noise", ["--policy.use_rotation_noise=false"]),
+    "no_deformation_embedding": ("w/o deform. embedding", ["--policy.use_deformation_embedding=false"]),
+    "se3_diffusion": ("w/ SE(3) diffusion", ["--policy.local_diffusion=se3"]),
+    "tax3d_style": (
+        "TAX3D",
+        [
+            "--policy.use_gmm=false",
+            "--policy.disentangled=false",
+            "--policy.use_reconstruction_embedding=false",
+            "--policy.use_deformation_embedding=false",
+        ],
+    ),
+}
+#: The paper's success rates (its Table: ablations on RPDiff tasks) for the tasks it reports.
+PAPER = {
+    "mug_medrack": {
+        "full": 0.97, "no_disentangled": 0.74, "mlp_encoder": 0.84, "no_gmm": 0.87,
+        "no_reconstruction_embedding": 0.91, "no_rotation_noise": 0.85, "no_deformation_embedding": 0.94,
+        "se3_diffusion": 0.92, "tax3d_style": 0.46,
+    },
+    "book_shelf": {
+        "full": 0.99, "no_disentangled": 0.53, "mlp_encoder": 0.61, "no_gmm": 0.75,
+        "no_reconstruction_embedding": 0.78, "no_rotation_noise": 0.96, "no_deformation_embedding": 0.95,
+        "se3_diffusion": 0.96, "tax3d_style": 0.38,
+    },
+}
+DEFAULT_TASKS = ["mug_medrack", "book_shelf", "insert_waterproof"]
+
+
+def run_command(task: str, variant: str, args: argparse.Namespace, python: str = sys.executable) -> list[str]:
+    work = args.output / task
+    return [
+        python, "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
+        f"--episodes={args.episodes}", f"--trials={args.trials}", f"--num-samples={args.num_samples}",
+        f"--dataset={work / 'data'}", f"--output={work / variant}",
+        *([f"--steps={args.steps}"] if args.steps else []), *VARIANTS[variant][1],
+    ]
+
+
+def run_logged(command: list[str], log: Path, threads: int) -> None:
+    """One child process with its own thread budget; its output goes to `log` (the table reads metrics.json)."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    with log.open("w") as stream:
+        subprocess.run(command, stdout=stream, stderr=subprocess.STDOUT, env=env, check=True, cwd=ROOT)
+
+
+def generate_data(task: str, args: argparse.Namespace, threads: int) -> None:
+    data = args.output / task / "data"
+    if (data / "meta" / "info.json").is_file():
+        return
+    command = [
+        sys.executable, "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
+        "--split=train", f"--repo-id=local/{task}", f"--root={data}",
+    ]
+    run_logged(command, args.output / task / "generate.log", threads)
+
+
+def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, threads: int) -> str | None:
+    """Run one cell of the table unless it is already there; returns why it failed, if it did."""
+    folder = args.output / task / variant
+    if (folder / "metrics.json").is_file():
+        return None
+    started = time.perf_counter()
+    log = folder.with_suffix(".log")
+    try:
+        run_logged(run_command(task, variant, args), log, threads)
+    except subprocess.CalledProcessError as error:
+        return f"{task} / {variant}: exit status {error.returncode}, see {log}"
+    print(f"{task} / {variant}: {(time.perf_counter() - started) / 60:.1f} min", flush=True)
+    return None
+
+
+def table_row(task: str, variant: str, args: argparse.Namespace) -> dict:
+    metrics = json.loads((args.output / task / variant / "metrics.json").read_text())
+    success = metrics["success"]
+    coverage = next((key for key in metrics if key.startswith("coverage@")), None)
+    return {
+        "task": task,
+        "variant": variant,
+        "paper_row": VARIANTS[variant][0],
+        "success_rate": success["success_rate"],
+        "success_ci95": [success["ci95_low"], success["ci95_high"]],
+        "translation_error_mm": metrics["translation_error_mm"]["median"],
+        "rotation_error_deg": metrics["rotation_error_deg"]["median"],
+        "winner_take_all_rmse_mm": metrics["winner_take_all_rmse_mm"]["median"],
+        "coverage": metrics[coverage] if coverage else None,
+        "precision": metrics[coverage.replace("coverage", "precision")] if coverage else None,
+        "coverage_threshold_mm": metrics.get("coverage_threshold_mm"),
+        "paper_success_rate": PAPER.get(task, {}).get(variant),
+        "train_seconds": metrics["train_seconds"],
+        "command": " ".join(str(part) for part in run_command(task, variant, args, python="python")),
+    }
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "| task | variant | success (95% CI) | paper | translation / rotation error | WTA RMSE | coverage / precision |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        low, high = row["success_ci95"]
+        paper = f"{row['paper_success_rate']:.2f}" if row["paper_success_rate"] is not None else "-"
+        cover = "-" if row["coverage"] is None else f"{row['coverage']:.2f} / {row['precision']:.2f}"
+        lines.append(
+            f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | {row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
+            f"{row['translation_error_mm']:.1f} mm / {row['rotation_error_deg']:.1f} deg | "
+            f"{row['winner_take_all_rmse_mm']:.1f} mm | {cover} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", nargs="+", default=DEFAULT_TASKS, choices=task_names())
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--config", type=Path, default=Path("configs/taxdpd_ablation.json"))
+    parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
+    parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
+    parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")
+    parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
+    parser.add_argument("--jobs", type=int, default=1, help="runs at the same time (default: 1)")
+    parser.add_argument("--output", type=Path, default=Path("results/ablations"))
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    threads = max(1, (os.cpu_count() or 1) // args.jobs)
+    started = time.perf_counter()
+    # variant-major order: an interrupted table still has every task for the variants it reached
+    jobs = [(task, variant) for variant in args.variants for task in args.tasks]
+    with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
+        list(pool.map(lambda task: generate_data(task, args, threads), args.tasks))
+        failures = [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), jobs) if error]
+    rows = [table_row(task, variant, args) for task, variant in jobs if f"{task} / {variant}:" not in " ".join(failures)]
+    machine = machine_info()
+    machine["torch_threads"] = threads
+    payload = {
+        "machine": machine, "config": str(args.config), "jobs": args.jobs, "rows": rows, "failures": failures,
+        "wall_seconds": time.perf_counter() - started,
+    }
+    write_json(args.output.with_suffix(".json"), payload)
+    args.output.with_suffix(".md").write_text(markdown(rows))
+    print(markdown(rows))
+    for failure in failures:
+        print(f"failed: {failure}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
