@@ -1,0 +1,66 @@
+"""The ablation table as a user runs it: `benchmarks/ablations.py` drives `sim pretrain` once per variant."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import TINY_TAXDPD
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def tiny_config(path: Path) -> Path:
+    """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
+    config = json.loads((ROOT / "configs" / "taxdpd_ablation.json").read_text())
+    for flag in TINY_TAXDPD:
+        field, value = flag.removeprefix("--policy.").split("=")
+        config["policy"][field] = value if field == "device" else int(value)
+    config["policy"].update(num_object_points=32, num_scene_points=64)
+    path.write_text(json.dumps(config))
+    return path
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess:
+    command = [sys.executable, *map(str, args)]
+    return subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=ROOT)
+
+
+def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table(tmp_path):
+    output = tmp_path / "ablations"
+    args = [
+        ROOT / "benchmarks" / "ablations.py", "--tasks", "book_shelf", "--variants", "full", "no_gmm", "--steps", "2",
+        "--episodes", "4", "--trials", "2", "--num-samples", "2", "--config", tiny_config(tmp_path / "tiny.json"),
+        "--output", output,
+    ]
+    result = run(*args)
+    assert result.returncode == 0, result.stderr[-4000:]
+    rows = json.loads(output.with_suffix(".json").read_text())["rows"]
+    assert [(r["variant"], r["paper_row"]) for r in rows] == [("full", "TAX-DPD"), ("no_gmm", "w/o GMM")]
+    assert all(r["paper_success_rate"] is not None and 0 <= r["success_rate"] <= 1 for r in rows)
+    assert all(r["coverage"] is not None for r in rows)  # book_shelf has several valid goals
+    assert "| book_shelf | w/o GMM (`no_gmm`) |" in output.with_suffix(".md").read_text()
+
+    task = output / "book_shelf"
+    assert (task / "data" / "meta" / "info.json").is_file() and not (task / "full" / "data").exists()
+    for variant, use_gmm in (("full", True), ("no_gmm", False)):
+        checkpoint = task / variant / "train" / "checkpoints" / "last" / "pretrained_model"
+        assert json.loads((checkpoint / "config.json").read_text())["use_gmm"] is use_gmm
+        metrics = json.loads((task / variant / "metrics.json").read_text())
+        assert ("--policy.use_gmm=false" in metrics["training_command"]) is not use_gmm
+        gmm_maps = list((task / variant / "figures").glob("*_gmm.png"))
+        assert bool(gmm_maps) is use_gmm  # a model without the Dense GMM has no weight map to draw
+
+    # A rerun reuses every finished cell instead of training again.
+    finished = (task / "no_gmm" / "metrics.json").stat().st_mtime_ns
+    assert run(*args).returncode == 0
+    assert (task / "no_gmm" / "metrics.json").stat().st_mtime_ns == finished
+
+
+def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
+    result = run("-m", "lerobot_taxdpd.sim", "pretrain", "--task", "book_shelf", "--bogus=1")
+    assert result.returncode == 2 and "unrecognized arguments: --bogus=1" in result.stderr
+    result = run("-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false")
+    assert result.returncode == 2 and "unrecognized arguments: --policy.use_gmm=false" in result.stderr
