@@ -8,6 +8,7 @@ trials with K = 10 goals. Finished runs are reused, so an interrupted table resu
     python benchmarks/ablations.py                       # results/ablations.{json,md}, runs in results/ablations/
     python benchmarks/ablations.py --jobs 2              # two runs at a time, one torch thread each
     python benchmarks/ablations.py --tasks insert_ssd --variants full   # any task, any subset of variants
+    python benchmarks/ablations.py --report-only         # the table of whatever has finished so far
 """
 
 from __future__ import annotations
@@ -21,7 +22,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
+
 from lerobot_taxdpd.benchmarking import machine_info, write_json
+from lerobot_taxdpd.metrics import paired_difference
 from lerobot_taxdpd.sim.tasks import task_names
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,10 +109,20 @@ def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, thread
     return None
 
 
-def table_row(task: str, variant: str, args: argparse.Namespace) -> dict:
+def per_trial_wta_rmse(task: str, variant: str, args: argparse.Namespace) -> np.ndarray:
+    """Winner-take-all RMSE (mm) of every held-out trial, in seed order (every variant sees the same seeds)."""
+    report = json.loads((args.output / task / variant / f"{task}_eval.json").read_text())
+    return np.array([trial["winner_take_all_rmse_mm"] for trial in sorted(report["per_trial"], key=lambda t: t["seed"])])
+
+
+def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[tuple[str, str]]) -> dict:
     metrics = json.loads((args.output / task / variant / "metrics.json").read_text())
     success = metrics["success"]
     coverage = next((key for key in metrics if key.startswith("coverage@")), None)
+    versus_full = None
+    if variant != "full" and (task, "full") in finished:
+        mean, low, high = paired_difference(per_trial_wta_rmse(task, variant, args), per_trial_wta_rmse(task, "full", args))
+        versus_full = {"mean_mm": mean, "ci95_mm": [low, high]}
     return {
         "task": task,
         "variant": variant,
@@ -117,7 +131,8 @@ def table_row(task: str, variant: str, args: argparse.Namespace) -> dict:
         "success_ci95": [success["ci95_low"], success["ci95_high"]],
         "translation_error_mm": metrics["translation_error_mm"]["median"],
         "rotation_error_deg": metrics["rotation_error_deg"]["median"],
-        "winner_take_all_rmse_mm": metrics["winner_take_all_rmse_mm"]["median"],
+        "winner_take_all_rmse_mm": metrics["winner_take_all_rmse_mm"]["mean"],
+        "winner_take_all_rmse_vs_full": versus_full,
         "coverage": metrics[coverage] if coverage else None,
         "precision": metrics[coverage.replace("coverage", "precision")] if coverage else None,
         "coverage_threshold_mm": metrics.get("coverage_threshold_mm"),
@@ -129,17 +144,20 @@ def table_row(task: str, variant: str, args: argparse.Namespace) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     lines = [
-        "| task | variant | success (95% CI) | paper | translation / rotation error | WTA RMSE | coverage / precision |",
-        "|---|---|---|---|---|---|---|",
+        "| task | variant | success (95% CI) | paper | median translation / rotation error | mean WTA RMSE "
+        "| WTA RMSE minus full's, paired (95% CI) | coverage / precision |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         low, high = row["success_ci95"]
         paper = f"{row['paper_success_rate']:.2f}" if row["paper_success_rate"] is not None else "-"
         cover = "-" if row["coverage"] is None else f"{row['coverage']:.2f} / {row['precision']:.2f}"
+        versus = row["winner_take_all_rmse_vs_full"]
+        versus = "-" if versus is None else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
         lines.append(
             f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | {row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
             f"{row['translation_error_mm']:.1f} mm / {row['rotation_error_deg']:.1f} deg | "
-            f"{row['winner_take_all_rmse_mm']:.1f} mm | {cover} |"
+            f"{row['winner_take_all_rmse_mm']:.1f} mm | {versus} | {cover} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -155,6 +173,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
     parser.add_argument("--jobs", type=int, default=1, help="runs at the same time (default: 1)")
     parser.add_argument("--output", type=Path, default=Path("results/ablations"))
+    parser.add_argument("--report-only", action="store_true", help="write the table from the finished runs, train nothing")
     return parser.parse_args(argv)
 
 
@@ -164,10 +183,18 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     # variant-major order: an interrupted table still has every task for the variants it reached
     jobs = [(task, variant) for variant in args.variants for task in args.tasks]
-    with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
-        list(pool.map(lambda task: generate_data(task, args, threads), args.tasks))
-        failures = [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), jobs) if error]
-    rows = [table_row(task, variant, args) for task, variant in jobs if f"{task} / {variant}:" not in " ".join(failures)]
+    failures = []
+    if not args.report_only:
+        with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
+            list(pool.map(lambda task: generate_data(task, args, threads), args.tasks))
+            failures = [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), jobs) if error]
+    finished = {job for job in jobs if (args.output / job[0] / job[1] / "metrics.json").is_file()}
+    rows = [
+        table_row(task, variant, args, finished)
+        for task in args.tasks
+        for variant in args.variants
+        if (task, variant) in finished
+    ]
     machine = machine_info()
     machine["torch_threads"] = threads
     payload = {

@@ -41,6 +41,9 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     assert [(r["variant"], r["paper_row"]) for r in rows] == [("full", "TAX-DPD"), ("no_gmm", "w/o GMM")]
     assert all(r["paper_success_rate"] is not None and 0 <= r["success_rate"] <= 1 for r in rows)
     assert all(r["coverage"] is not None for r in rows)  # book_shelf has several valid goals
+    assert rows[0]["winner_take_all_rmse_vs_full"] is None
+    paired = rows[1]["winner_take_all_rmse_vs_full"]  # same seeds, so the difference is per scene
+    assert paired["ci95_mm"][0] <= paired["mean_mm"] <= paired["ci95_mm"][1]
     assert "| book_shelf | w/o GMM (`no_gmm`) |" in output.with_suffix(".md").read_text()
 
     task = output / "book_shelf"
@@ -57,6 +60,11 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     finished = (task / "no_gmm" / "metrics.json").stat().st_mtime_ns
     assert run(*args).returncode == 0
     assert (task / "no_gmm" / "metrics.json").stat().st_mtime_ns == finished
+    # --report-only tabulates what has finished and starts nothing.
+    result = run(*args[:6], "mlp_encoder", *args[6:], "--report-only")
+    assert result.returncode == 0, result.stderr[-4000:]
+    assert len(json.loads(output.with_suffix(".json").read_text())["rows"]) == 2
+    assert not (task / "mlp_encoder").exists()
 
 
 def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():

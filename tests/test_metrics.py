@@ -41,3 +41,13 @@ def test_wilson_interval_is_sane_at_the_edges():
     assert low == 0.0 and 0.15 < high < 0.18
     summary = metrics.success_summary(78, 100)
     assert summary["ci95_low"] < 0.78 < summary["ci95_high"]
+
+
+def test_paired_difference_separates_a_small_shift_hidden_in_a_large_spread():
+    rng = np.random.default_rng(0)
+    scenes = rng.uniform(0, 100, 100)  # per-scene difficulty, far larger than the effect
+    mean, low, high = metrics.paired_difference(scenes + 2.0 + rng.normal(0, 0.5, 100), scenes)
+    assert 1.8 < mean < 2.2 and 0 < low < mean < high < 2.5
+    assert metrics.paired_difference(scenes, scenes) == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="same non-zero length"):
+        metrics.paired_difference(scenes, scenes[:-1])
