@@ -162,6 +162,34 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary_markdown(rows: list[dict]) -> str:
+    """One line a variant, one column a task: success and the paired WTA RMSE change, paper's success beside."""
+    tasks = list(dict.fromkeys(row["task"] for row in rows))
+    paper_tasks = [task for task in tasks if task in PAPER]
+    cells = {(row["task"], row["variant"]): row for row in rows}
+    header = ["variant", *(f"{task}: success, WTA RMSE (paired change)" for task in tasks)]
+    header += [f"paper {task}" for task in paper_tasks]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for variant in dict.fromkeys(row["variant"] for row in rows):
+        line = [f"{VARIANTS[variant][0]} (`{variant}`)"]
+        for task in tasks:
+            row = cells.get((task, variant))
+            if row is None:
+                line.append("-")
+                continue
+            low, high = row["success_ci95"]
+            versus = row["winner_take_all_rmse_vs_full"]
+            change = (
+                f"{row['winner_take_all_rmse_mm']:.1f} mm"
+                if versus is None
+                else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
+            )
+            line.append(f"{row['success_rate']:.0%} ({low:.0%}-{high:.0%}), {change}")
+        line += [f"{PAPER[task][variant]:.2f}" for task in paper_tasks]
+        lines.append("| " + " | ".join(line) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=DEFAULT_TASKS, choices=task_names())
@@ -202,8 +230,9 @@ def main(argv: list[str] | None = None) -> int:
         "wall_seconds": time.perf_counter() - started,
     }
     write_json(args.output.with_suffix(".json"), payload)
-    args.output.with_suffix(".md").write_text(markdown(rows))
-    print(markdown(rows))
+    tables = summary_markdown(rows) + "\n" + markdown(rows)
+    args.output.with_suffix(".md").write_text(tables)
+    print(tables)
     for failure in failures:
         print(f"failed: {failure}", file=sys.stderr)
     return 1 if failures else 0
