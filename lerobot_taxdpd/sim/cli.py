@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain = verbs.add_parser(
         "pretrain",
         help="demos, lerobot-train, held-out eval, and a packaged checkpoint",
-        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) is passed on to lerobot-train.",
+        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) and --seed=<n> are passed on to lerobot-train.",
     )
     pretrain.add_argument("--task", required=True, choices=task_names())
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         return cloth_main(argv)
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
-    overrides = [arg for arg in unknown if args.verb == "pretrain" and arg.startswith("--policy.") and "=" in arg]
+    overrides = [arg for arg in unknown if args.verb == "pretrain" and arg.startswith(("--policy.", "--seed=")) and "=" in arg]
     if len(overrides) < len(unknown):
         parser.error(f"unrecognized arguments: {' '.join(arg for arg in unknown if arg not in overrides)}")
     try:
