@@ -87,15 +87,21 @@ def run_logged(command: list[str], log: Path, threads: int) -> None:
         subprocess.run(command, stdout=stream, stderr=subprocess.STDOUT, env=env, check=True, cwd=ROOT)
 
 
-def generate_data(task: str, args: argparse.Namespace, threads: int) -> None:
+def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | None:
+    """The task's shared demonstrations unless they exist; returns why generating them failed, if it did."""
     data = args.output / task / "data"
     if (data / "meta" / "info.json").is_file():
-        return
+        return None
     command = [
         sys.executable, "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
         "--split=train", f"--repo-id=local/{task}", f"--root={data}",
     ]
-    run_logged(command, args.output / task / "generate.log", threads)
+    log = args.output / task / "generate.log"
+    try:
+        run_logged(command, log, threads)
+    except subprocess.CalledProcessError as error:
+        return f"{task}: generating demonstrations failed with exit status {error.returncode}, see {log}"
+    return None
 
 
 def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, threads: int) -> str | None:
@@ -218,8 +224,9 @@ def main(argv: list[str] | None = None) -> int:
     failures = []
     if not args.report_only:
         with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
-            list(pool.map(lambda task: generate_data(task, args, threads), args.tasks))
-            failures = [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), jobs) if error]
+            failures = [error for error in pool.map(lambda task: generate_data(task, args, threads), args.tasks) if error]
+            ready = [job for job in jobs if not any(error.startswith(f"{job[0]}:") for error in failures)]
+            failures += [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), ready) if error]
     finished = {job for job in jobs if (args.output / job[0] / job[1] / "metrics.json").is_file()}
     rows = [
         table_row(task, variant, args, finished)

@@ -3,6 +3,8 @@ upside-down test, and the shared helpers they added (quaternions, coverage from 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pybullet as pb
 import pytest
@@ -13,7 +15,9 @@ from lerobot_taxdpd.sim.bodies import box, create_body, cylinder, prism
 from lerobot_taxdpd.sim.cameras import CameraSpec, orbit_cameras, render_segmented_clouds
 from lerobot_taxdpd.sim.controller import penetration, sweep_to_goal
 from lerobot_taxdpd.sim.designs.cabinets import CABINET_SPACE, CAN_SPACE
+from lerobot_taxdpd.sim.designs.connectors import BUILDERS as CONNECTOR_BUILDERS
 from lerobot_taxdpd.sim.designs.connectors import DSUB_SPACE, SSD_SPACE, WATERPROOF_SPACE
+from lerobot_taxdpd.sim.designs.connectors import SPACES as CONNECTOR_SPACES
 from lerobot_taxdpd.sim.designs.mugs import MUG_SPACE
 from lerobot_taxdpd.sim.designs.racks import RACK_SPACE
 from lerobot_taxdpd.sim.designs.shelves import BOOK_SPACE, SHELF_SPACE
@@ -95,6 +99,19 @@ def test_bodies_collide_exactly_at_clearance_scale():
         )
         distances = [p[8] for p in pb.getClosestPoints(plug, wall, 0.005, linkIndexA=-1, physicsClientId=client)]
         assert min(distances) == pytest.approx(0.0003, abs=2e-6)
+
+
+@pytest.mark.parametrize("family", sorted(CONNECTOR_BUILDERS))
+def test_every_corner_of_a_connector_space_builds_solid_bodies(family):
+    """The extremes of the parameters meet (narrowest SSD card with its notch farthest out, ...): every
+    combination must still give plug and socket parts Bullet can collide, or demo generation stops there."""
+    space = CONNECTOR_SPACES[family]
+    names = list(space.ranges)
+    with physics_world() as client:
+        for corner in itertools.product(*(space.ranges[name] for name in names)):
+            plug, socket = CONNECTOR_BUILDERS[family](dict(zip(names, corner)))
+            create_body(client, list(plug.parts), mass=0.02)
+            create_body(client, list(socket.parts))
 
 
 def test_parts_thinner_than_bullets_margin_are_refused_unless_drawn_only():

@@ -29,6 +29,7 @@ ARC_SEGMENTS = 24
 DSUB_TAPER_DEG = 10.0
 PIN_RADIUS = 0.0005
 PIN_LENGTH = 0.0012
+NOTCH_LAND = 0.0025  # narrowest card left beside the SSD's notch: thinner boxes would not collide reliably
 
 WATERPROOF_SPACE = ParameterSpace(
     name="waterproof",
@@ -173,7 +174,8 @@ def dsub25(params: dict[str, float]) -> tuple[PlugDesign, SocketDesign]:
 def ssd(params: dict[str, float]) -> tuple[PlugDesign, SocketDesign]:
     """A tall card with a key notch in its bottom edge, and the slot it goes into."""
     width, thickness, height, insert = params["width"], params["thickness"], params["height"], params["insert"]
-    notch_x, notch_w, notch_h = params["notch"] * width, 0.003, 0.004
+    notch_w, notch_h = 0.003, 0.004
+    notch_x = min(params["notch"] * width, width / 2 - notch_w / 2 - NOTCH_LAND)  # narrow cards, far notches
     half_t = thickness / 2
     left = (notch_x - notch_w / 2 + width / 2) / 2
     right = (width / 2 - notch_x - notch_w / 2) / 2
