@@ -63,6 +63,12 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     finished = (task / "no_gmm" / "metrics.json").stat().st_mtime_ns
     assert run(*args).returncode == 0
     assert (task / "no_gmm" / "metrics.json").stat().st_mtime_ns == finished
+    # A finished cell is reused only by its own command, not by a run with other flags.
+    other = run(
+        "-m", "lerobot_taxdpd.sim", "pretrain", "--task", "book_shelf", "--config", tmp_path / "tiny.json",
+        "--steps", "2", "--dataset", task / "data", "--output", task / "no_gmm", "--policy.use_gmm=true",
+    )
+    assert other.returncode == 1 and "trained by another command" in other.stderr
     # --report-only tabulates what has finished and starts nothing.
     result = run(*args[:6], "mlp_encoder", *args[6:], "--report-only")
     assert result.returncode == 0, result.stderr[-4000:]

@@ -6,7 +6,8 @@
 Steps: scripted demonstrations of the training geometry (`generate`), `lerobot-train` with the CPU recipe
 of `configs/taxdpd_cpu.json`, the evaluation harness on held-out geometry, then the checkpoint with its
 measured metrics (task, training command and budget, held-out success and errors) saved as a shipped
-predictor when `--ship` names a folder. Each step that already finished is reused on a rerun.
+predictor when `--ship` names a folder. Each step that already finished is reused on a rerun; a checkpoint
+is reused only by the training command that made it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
 
 CPU_RECIPE = Path(__file__).resolve().parents[2] / "configs" / "taxdpd_cpu.json"
+TRAIN_COMMAND_FILE = "train_command.txt"
 
 
 def train_command(
@@ -101,9 +103,18 @@ def pretrain(
         generate_dataset(task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), _relative(config_path), steps, overrides)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
+    recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with
     train_seconds = None
-    if not (checkpoint / "model.safetensors").is_file():
+    if (checkpoint / "model.safetensors").is_file():
+        if recorded.is_file() and recorded.read_text() != shlex.join(command):
+            raise ValueError(
+                f"--output {output}: holds a checkpoint trained by another command ({recorded.read_text()}); "
+                "choose another --output or delete that folder"
+            )
+    else:
         print(f"[2/4] {shlex.join(command)}", flush=True)
+        output.mkdir(parents=True, exist_ok=True)
+        recorded.write_text(shlex.join(command))
         train_seconds = _lerobot_train(command)
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
