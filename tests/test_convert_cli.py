@@ -115,7 +115,11 @@ def test_interrupt_leaves_the_previous_dataset_untouched(tmp_path):
     before = {p.relative_to(root): p.stat().st_size for p in root.rglob("*")}
     big = _rpdiff_dir(tmp_path / "big", 60)
     command = [str(BIN / "taxdpd-convert"), "rpdiff", "--raw-dir", str(big), "--repo-id", "me/x", "--root", str(root)]
-    process = subprocess.Popen([*command, "--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # A shell starts background jobs with SIGINT ignored, and a child would inherit that: give it Ctrl-C back.
+    process = subprocess.Popen(
+        [*command, "--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     while not leftovers(root) and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
