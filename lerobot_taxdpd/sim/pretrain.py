@@ -34,7 +34,7 @@ TRAIN_COMMAND_FILE = "train_command.txt"
 def train_command(
     dataset: Path, repo_id: str, output_dir: Path, config_path: Path, steps: int | None, overrides: Sequence[str] = ()
 ) -> list[str]:
-    """`lerobot-train` on the recipe in `config_path`; `overrides` are extra `--policy.<field>=<value>` flags."""
+    """`lerobot-train` on the recipe in `config_path`; `overrides` are extra flags (`--policy.<field>=<value>`, `--seed=<n>`)."""
     command = [
         "lerobot-train",
         f"--config_path={config_path}",
