@@ -8,7 +8,7 @@ import math
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import farthest_point_sample, rotation_about_z
+from lerobot_taxdpd.geometry import axis_angle_to_matrix, farthest_point_sample, rotation_about_z
 
 
 def _uniform(batch: int, like: Tensor, generator: torch.Generator | None) -> Tensor:
@@ -24,6 +24,21 @@ def random_z_rotation(
     rotation = rotation_about_z(angle).transpose(-1, -2)
     pivot = scene_points.mean(dim=1, keepdim=True)
     return tuple((x - pivot) @ rotation + pivot for x in (object_points, scene_points, goal_points))
+
+
+def random_start_pose(
+    object_points: Tensor, max_yaw_deg: float, max_tilt_deg: float, generator: torch.Generator | None = None
+) -> Tensor:
+    """Turn each object cloud alone about its centroid: a yaw ~ U(+-max_yaw) after a tilt ~ U(0, max_tilt)
+    about a random horizontal axis. The goal is left as it is, so row i still goes where it went."""
+    b = object_points.shape[0]
+    yaw = (2 * _uniform(b, object_points, generator) - 1) * math.radians(max_yaw_deg)
+    tilt = _uniform(b, object_points, generator) * math.radians(max_tilt_deg)
+    heading = _uniform(b, object_points, generator) * (2 * math.pi)
+    axis = torch.stack([torch.cos(heading), torch.sin(heading), torch.zeros_like(heading)], -1)
+    rotation = (rotation_about_z(yaw) @ axis_angle_to_matrix(axis, tilt)).transpose(-1, -2)
+    centroid = object_points.mean(dim=1, keepdim=True)
+    return (object_points - centroid) @ rotation + centroid
 
 
 def _rank(values: Tensor) -> Tensor:

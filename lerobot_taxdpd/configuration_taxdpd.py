@@ -31,6 +31,7 @@ from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")
 SAMPLERS = ("ddim", "ddpm")
+PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 
 
 @PreTrainedConfig.register_subclass("taxdpd")
@@ -85,6 +86,7 @@ class TaxDPDConfig(PreTrainedConfig):
     num_train_timesteps: int = 100
     beta_start: float = 1e-4  # given for a 1000-step schedule and rescaled to num_train_timesteps
     beta_end: float = 0.02
+    prediction_type: str = "epsilon"  # what the denoiser outputs: the noise, the clean goal, or v
     rotation_noise_std_deg: float = 45.0
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
     sampler: str = "ddim"
@@ -93,6 +95,11 @@ class TaxDPDConfig(PreTrainedConfig):
 
     # ---- training augmentation
     z_rotation_augmentation: bool = True
+    # The object alone turned about its centroid by a random yaw in +-start_yaw_range and a tilt about a
+    # random horizontal axis up to start_tilt_range (degrees), the goal kept: the start orientation then says
+    # nothing about the goal's, so the network must read it off the object's shape and the scene.
+    start_yaw_range: float = 0.0
+    start_tilt_range: float = 0.0
     object_occlusion_prob: float = 0.0  # random plane cut of the object (the authors used 0.8)
     scene_occlusion_prob: float = 0.0  # random ball cut of the scene (the authors used 0.8)
 
@@ -115,6 +122,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"encoder: must be one of {ENCODERS}, got {self.encoder!r}")
         if self.local_diffusion not in LOCAL_DIFFUSIONS:
             raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
+        if self.prediction_type not in PREDICTION_TYPES:
+            raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler: must be one of {SAMPLERS}, got {self.sampler!r}")
         if self.local_diffusion == "se3" and not self.disentangled:

@@ -20,7 +20,7 @@ from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
 from torch import Tensor, nn
 
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot_taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_z_rotation
+from lerobot_taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_start_pose, random_z_rotation
 from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
 from lerobot_taxdpd.geometry import (
     estimate_rigid_transform,
@@ -302,6 +302,8 @@ class TaxDPDPolicy(PreTrainedPolicy):
         config = self.config
         if config.z_rotation_augmentation:
             object_points, scene_points, goal_points = random_z_rotation(object_points, scene_points, goal_points)
+        if config.start_yaw_range > 0 or config.start_tilt_range > 0:
+            object_points = random_start_pose(object_points, config.start_yaw_range, config.start_tilt_range)
         if config.object_occlusion_prob > 0:
             keep = plane_cut(object_points, config.object_occlusion_prob)
             object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)

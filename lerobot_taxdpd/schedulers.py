@@ -1,4 +1,4 @@
-"""A small Gaussian diffusion scheduler for epsilon-prediction models (DDPM training, DDIM/DDPM sampling)."""
+"""A small Gaussian diffusion scheduler (DDPM training, DDIM/DDPM sampling) for epsilon, sample or v targets."""
 
 from __future__ import annotations
 
@@ -33,6 +33,24 @@ class DiffusionScheduler:
     def add_noise(self, sample: Tensor, noise: Tensor, t: Tensor) -> Tensor:
         a = self._alpha_bar(t, sample)
         return a.sqrt() * sample + (1.0 - a).sqrt() * noise
+
+    def target(self, prediction_type: str, sample: Tensor, noise: Tensor, t: Tensor) -> Tensor:
+        """What the network is trained to output: the noise, the clean sample, or v = sqrt(a) eps - sqrt(1-a) x0."""
+        if prediction_type == "epsilon":
+            return noise
+        if prediction_type == "sample":
+            return sample
+        a = self._alpha_bar(t, sample)
+        return a.sqrt() * noise - (1.0 - a).sqrt() * sample
+
+    def to_noise(self, prediction_type: str, output: Tensor, noisy: Tensor, t: int) -> Tensor:
+        """The noise estimate implied by a network output of `prediction_type` at step t."""
+        if prediction_type == "epsilon":
+            return output
+        a = self._alpha_bar(torch.full((noisy.shape[0],), t, device=noisy.device), noisy)
+        if prediction_type == "sample":
+            return (noisy - a.sqrt() * output) / (1.0 - a).sqrt()
+        return a.sqrt() * output + (1.0 - a).sqrt() * noisy
 
     def inference_timesteps(self, num_inference_steps: int) -> list[tuple[int, int]]:
         """(t, t_prev) pairs from T-1 down to 0, evenly spaced; t_prev = -1 marks the final clean sample."""

@@ -136,8 +136,9 @@ class LocalDiffusion(nn.Module):
         )
         self.scheduler = DiffusionScheduler(config.num_train_timesteps, config.beta_start, config.beta_end)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
+        self.prediction_type = config.prediction_type
 
-    def _predict_noise(self, context: DenoiserContext, state: State, t: Tensor) -> State:
+    def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
         return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t))
 
@@ -152,7 +153,8 @@ class LocalDiffusion(nn.Module):
         t = torch.randint(0, self.scheduler.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
         t = t.to(goal.device)
         noisy = {k: self.scheduler.add_noise(clean[k], noise[k], t) for k in clean}
-        return param.loss(self._predict_noise(self.denoiser.context(object_centred, scene), noisy, t), noise)
+        target = {k: self.scheduler.target(self.prediction_type, clean[k], noise[k], t) for k in clean}
+        return param.loss(self._predict(self.denoiser.context(object_centred, scene), noisy, t), target)
 
     @torch.no_grad()
     def sample(
@@ -170,11 +172,16 @@ class LocalDiffusion(nn.Module):
         state = param.initial_state(context.object_centred, generator)
         for t, t_prev in self.scheduler.inference_timesteps(num_inference_steps):
             steps = torch.full((scene.shape[0],), t, device=scene.device)
-            predicted = self._predict_noise(context, state, steps)
+            predicted = self._predict(context, state, steps)
             state = param.project(
                 {
                     k: self.scheduler.step(
-                        predicted[k], t, t_prev, state[k], eta=eta, noise=randn_like(state[k], generator) if eta > 0 else None
+                        self.scheduler.to_noise(self.prediction_type, predicted[k], state[k], t),
+                        t,
+                        t_prev,
+                        state[k],
+                        eta=eta,
+                        noise=randn_like(state[k], generator) if eta > 0 else None,
                     )
                     for k in state
                 }
