@@ -87,6 +87,8 @@ class TaxDPDConfig(PreTrainedConfig):
     beta_start: float = 1e-4  # given for a 1000-step schedule and rescaled to num_train_timesteps
     beta_end: float = 0.02
     prediction_type: str = "epsilon"  # what the denoiser outputs: the noise, the clean goal, or v
+    # The clean shape as one rotation (from the frame token) of the initial object plus a per-point residual.
+    rotation_head: bool = False
     rotation_noise_std_deg: float = 45.0
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
     sampler: str = "ddim"
@@ -124,6 +126,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
+        if self.rotation_head and (self.prediction_type != "sample" or not self.disentangled or self.local_diffusion != "point"):
+            raise ValueError("rotation_head: needs prediction_type='sample' with the disentangled point diffusion")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler: must be one of {SAMPLERS}, got {self.sampler!r}")
         if self.local_diffusion == "se3" and not self.disentangled:
