@@ -34,6 +34,17 @@ SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 
 
+def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
+    """Sampling steps must divide the training steps: diffusers' DDIM steps from t to t - T // n, so any other
+    count would pair timesteps inexactly and skip part of the schedule."""
+    valid = [n for n in range(1, num_train_timesteps + 1) if num_train_timesteps % n == 0]
+    if not isinstance(num_inference_steps, int) or num_inference_steps not in valid:
+        raise ValueError(
+            f"num_inference_steps: must divide num_train_timesteps={num_train_timesteps} (one of {valid}), "
+            f"got {num_inference_steps!r}"
+        )
+
+
 @PreTrainedConfig.register_subclass("taxdpd")
 @dataclass
 class TaxDPDConfig(PreTrainedConfig):
@@ -134,11 +145,7 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError("local_diffusion='se3' already separates rotation and translation; keep disentangled=true")
         if self.hidden_dim % self.num_heads:
             raise ValueError(f"hidden_dim ({self.hidden_dim}) must be divisible by num_heads ({self.num_heads})")
-        if not 1 <= self.num_inference_steps <= self.num_train_timesteps:
-            raise ValueError(
-                f"num_inference_steps: must lie in [1, num_train_timesteps={self.num_train_timesteps}], "
-                f"got {self.num_inference_steps}"
-            )
+        check_inference_steps(self.num_inference_steps, self.num_train_timesteps)
         if self.point_scale is not None and not self.point_scale > 0:
             raise ValueError(f"point_scale: must be positive, got {self.point_scale}")
         for mode_name, mode in self.normalization_mapping.items():

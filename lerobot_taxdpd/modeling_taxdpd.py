@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from torch import Tensor, nn
 
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot_taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_start_pose, random_z_rotation
-from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig, check_inference_steps
 from lerobot_taxdpd.geometry import (
     estimate_rigid_transform,
     farthest_point_sample,
@@ -39,9 +40,16 @@ from lerobot_taxdpd.validation import PointCloudError, check_point_cloud, check_
 
 logger = logging.getLogger(__name__)
 
+#: DDIM's stochasticity per sampler name: deterministic DDIM, or ancestral DDPM sampling.
+SAMPLER_ETA = {"ddim": 0.0, "ddpm": 1.0}
+
 
 class TaxDPDModel(nn.Module):
-    """Dense GMM (global) + disentangled point diffusion (local), in model units around the scene centroid."""
+    """Dense GMM (global) + disentangled point diffusion (local).
+
+    Every cloud it takes and returns is in model units, centred on the scene centroid (see `ModelFrame`):
+    the scene's centroid is the origin, so the object's centroid is the object-to-scene offset.
+    """
 
     def __init__(self, config: TaxDPDConfig) -> None:
         super().__init__()
@@ -49,26 +57,20 @@ class TaxDPDModel(nn.Module):
         self.global_stage = DenseGMM(config) if config.use_gmm else None
         self.local_stage = LocalDiffusion(config)
 
-    def _gmm(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Logits (B, M), means (B, M, 3) in the input frame, and the scene centroid (B, 3)."""
-        scene_centroid = scene_points.mean(1)
+    def _gmm(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
+        """Mixing logits (B, M) and component means (B, M, 3)."""
         object_centroid = object_points.mean(1)
-        logits, means = self.global_stage(
-            object_points - object_centroid.unsqueeze(1),
-            scene_points - scene_centroid.unsqueeze(1),
-            object_centroid - scene_centroid,
-        )
-        return logits, means + scene_centroid.unsqueeze(1), scene_centroid
+        return self.global_stage(object_points - object_centroid.unsqueeze(1), scene_points, object_centroid)
 
     def compute_loss(self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor) -> dict[str, Tensor]:
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
         if self.global_stage is not None:
-            logits, means, _ = self._gmm(object_points, scene_points)
+            logits, means = self._gmm(object_points, scene_points)
             losses["loss_gmm"] = self.global_stage.loss(logits, means, target)
             frame = target + randn_like(target) * self.config.frame_noise_std
         else:
-            frame = scene_points.mean(1)
+            frame = torch.zeros_like(target)  # the scene centroid
         frame = frame.unsqueeze(1)
         object_centred = object_points - object_points.mean(1, keepdim=True)
         losses.update(self.local_stage.loss(object_centred, scene_points - frame, goal_points - frame))
@@ -78,7 +80,7 @@ class TaxDPDModel(nn.Module):
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         if self.global_stage is None:
             raise RuntimeError("this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution")
-        logits, means, _ = self._gmm(object_points, scene_points)
+        logits, means = self._gmm(object_points, scene_points)
         return torch.softmax(logits, -1), means
 
     def sample(
@@ -94,14 +96,14 @@ class TaxDPDModel(nn.Module):
         """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3)."""
         b, n, _ = object_points.shape
         if self.global_stage is not None:
-            logits, means, _ = self._gmm(object_points, scene_points)
+            logits, means = self._gmm(object_points, scene_points)
             probabilities = torch.softmax(logits.float(), -1)
             if generator is not None:
                 probabilities = probabilities.to(generator.device)
             component = torch.multinomial(probabilities, num_samples, replacement=True, generator=generator)
             frames = gather_points(means.float(), component.to(means.device))
         else:
-            frames = scene_points.mean(1, keepdim=True).expand(-1, num_samples, -1)
+            frames = scene_points.new_zeros(b, num_samples, 3)
         frames = frames.reshape(b * num_samples, 1, 3)
         scene_local = scene_points.repeat_interleave(num_samples, 0) - frames
         object_centred = object_points - object_points.mean(1, keepdim=True)
@@ -109,6 +111,27 @@ class TaxDPDModel(nn.Module):
             object_centred, scene_local, num_inference_steps, eta=eta, generator=generator
         )
         return (goals + frames).reshape(b, num_samples, n, 3)
+
+
+@dataclass(frozen=True)
+class ModelFrame:
+    """Metres in the caller's frame <-> model units: centred on the scene's centroid, scaled by `scale`."""
+
+    origin: Tensor  # (B, 1, 3), metres
+    scale: float  # model units per metre
+
+    @classmethod
+    def of_scene(cls, scene_points: Tensor, scale: float) -> ModelFrame:
+        return cls(scene_points.mean(1, keepdim=True), scale)
+
+    def to_model(self, points: Tensor) -> Tensor:
+        """(B, N, 3) metres -> model units."""
+        return (points - self.origin) * self.scale
+
+    def to_metres(self, points: Tensor) -> Tensor:
+        """(B, ..., N, 3) model units -> metres."""
+        origin = self.origin.reshape(self.origin.shape[0], *([1] * (points.dim() - 2)), 3)
+        return points.float() / self.scale + origin
 
 
 class TaxDPDPolicy(PreTrainedPolicy):
@@ -142,11 +165,10 @@ class TaxDPDPolicy(PreTrainedPolicy):
         goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points)
         if self.training:
             object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
-        scale = self._point_scale(object_points)
-        origin = scene_points.mean(1, keepdim=True)
+        frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points))
         with self._autocast():
             losses = self.model.compute_loss(
-                (object_points - origin) * scale, (scene_points - origin) * scale, (goal_points - origin) * scale
+                frame.to_model(object_points), frame.to_model(scene_points), frame.to_model(goal_points)
             )
         loss = losses.pop("loss")
         return loss, {name: float(value.detach()) for name, value in losses.items()}
@@ -182,22 +204,20 @@ class TaxDPDPolicy(PreTrainedPolicy):
         if not isinstance(num_samples, int) or num_samples < 1:
             raise ValueError(f"num_samples: must be a positive integer, got {num_samples!r}")
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        steps = num_inference_steps or self.config.num_inference_steps
-        eta = {"ddim": 0.0, "ddpm": 1.0}[sampler or self.config.sampler]
-        scale = self._point_scale(object_points)
-        origin = scene_points.mean(1, keepdim=True)
+        steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        check_inference_steps(steps, self.config.num_train_timesteps)
+        sampler = self.config.sampler if sampler is None else sampler
+        if sampler not in SAMPLER_ETA:
+            raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
+        eta = SAMPLER_ETA[sampler]
         model_object = self._at_model_resolution(object_points, self.config.num_object_points)
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
             goals = self.model.sample(
-                (model_object - origin) * scale,
-                (model_scene - origin) * scale,
-                num_samples,
-                steps,
-                eta=eta,
-                generator=generator,
+                frame.to_model(model_object), frame.to_model(model_scene), num_samples, steps, eta=eta, generator=generator
             )
-        goals = goals.float() / scale + origin.unsqueeze(1)
+        goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
             goals = lift_point_motion(object_points, model_object, goals)
         return goals
@@ -222,15 +242,12 @@ class TaxDPDPolicy(PreTrainedPolicy):
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         """The Dense GMM: mixing weights (B, N_S) over scene points and component means (B, N_S, 3), metres."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        scale = self._point_scale(object_points)
-        origin = scene_points.mean(1, keepdim=True)
         model_object = self._at_model_resolution(object_points, self.config.num_object_points)
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
-            weights, means = self.model.placement_distribution(
-                (model_object - origin) * scale, (model_scene - origin) * scale
-            )
-        weights, means = weights.float(), means.float() / scale + origin
+            weights, means = self.model.placement_distribution(frame.to_model(model_object), frame.to_model(model_scene))
+        weights, means = weights.float(), frame.to_metres(means)
         if model_scene.shape[1] != scene_points.shape[1]:
             # Each component of the reduced scene stands for the input points nearest to it: they share its
             # mean and split its weight, so the answer keeps one entry per input scene point and sums to one.

@@ -1,34 +1,45 @@
-"""The diffusion scheduler inverts its own forward process."""
+"""The local stage's noise process (diffusers' DDPM and DDIM schedulers) inverts itself exactly."""
 
+import pytest
 import torch
 
-from lerobot_taxdpd.schedulers import DiffusionScheduler
+from lerobot_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
-def test_schedule_ends_in_noise():
-    scheduler = DiffusionScheduler(100)
-    assert scheduler.alphas_cumprod[-1] < 1e-4  # rescaled betas: the last step is (almost) pure noise
-    assert scheduler.alphas_cumprod[0] > 0.98
+def _config(prediction_type: str = "epsilon") -> TaxDPDConfig:
+    return TaxDPDConfig.for_point_clouds(32, 64, device="cpu", prediction_type=prediction_type)
 
 
-def test_ddim_with_the_true_noise_recovers_the_sample_in_any_number_of_steps():
+def test_schedule_ends_in_noise_and_sampling_starts_there():
+    training = make_training_scheduler(_config())
+    assert training.alphas_cumprod[-1] < 1e-4  # rescaled betas: the last step is (almost) pure noise
+    assert training.alphas_cumprod[0] > 0.98
+    sampling = make_sampling_scheduler(_config())
+    sampling.set_timesteps(10)
+    assert sampling.timesteps[0] == 99 and sampling.timesteps[-1] == 9
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample", "v_prediction"])
+def test_ddim_with_the_true_target_recovers_the_sample_in_any_valid_number_of_steps(prediction_type):
     g = torch.Generator().manual_seed(0)
-    scheduler = DiffusionScheduler(100)
+    config = _config(prediction_type)
+    training, sampling = make_training_scheduler(config), make_sampling_scheduler(config)
     clean = torch.randn(4, 32, 3, generator=g, dtype=torch.float64)
     noise = torch.randn(clean.shape, generator=g, dtype=torch.float64)
     for steps in (1, 5, 100):
-        timesteps = scheduler.inference_timesteps(steps)
-        sample = scheduler.add_noise(clean, noise, torch.full((4,), timesteps[0][0]))
-        for t, t_prev in timesteps:
-            a = scheduler.alphas_cumprod[t]
-            oracle = (sample - a.sqrt() * clean) / (1 - a).sqrt()
-            sample = scheduler.step(oracle, t, t_prev, sample)
-        assert torch.allclose(sample, clean, atol=1e-9)
+        sampling.set_timesteps(steps)
+        sample = training.add_noise(clean, noise, sampling.timesteps[:1].expand(4))
+        for t in sampling.timesteps:
+            # the exact target at (sample, t): the sample's own noise, given the clean sample
+            a = training.alphas_cumprod[t].double()
+            oracle_noise = (sample - a.sqrt() * clean) / (1 - a).sqrt()
+            target = training_target(training, clean, oracle_noise, t.expand(4))
+            sample = sampling.step(target, t, sample).prev_sample
+        assert torch.allclose(sample, clean, atol=1e-5)  # diffusers keeps alpha_bar in float32
 
 
-def test_ddpm_step_needs_noise_and_adds_it():
-    scheduler = DiffusionScheduler(100)
-    sample = torch.zeros(2, 8, 3)
-    deterministic = scheduler.step(torch.zeros_like(sample), 50, 49, sample)
-    stochastic = scheduler.step(torch.zeros_like(sample), 50, 49, sample, eta=1.0, noise=torch.ones_like(sample))
-    assert not torch.allclose(deterministic, stochastic)
+@pytest.mark.parametrize("steps", [0, 3, 7, 101])
+def test_step_counts_that_would_pair_timesteps_inexactly_are_refused(steps):
+    with pytest.raises(ValueError, match="num_inference_steps: must divide"):
+        TaxDPDConfig.for_point_clouds(32, 64, device="cpu", num_inference_steps=steps)

@@ -21,7 +21,7 @@ from torch import Tensor, nn
 from lerobot_taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.model.parameterizations import State, make_parameterization, randn_like
 from lerobot_taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
-from lerobot_taxdpd.schedulers import DiffusionScheduler
+from lerobot_taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
 @dataclass
@@ -134,9 +134,9 @@ class LocalDiffusion(nn.Module):
         self.denoiser = LocalDenoiser(
             config, self.parameterization.frame_dim, self.parameterization.has_point_output
         )
-        self.scheduler = DiffusionScheduler(config.num_train_timesteps, config.beta_start, config.beta_end)
+        self.training_scheduler = make_training_scheduler(config)
+        self.sampling_scheduler = make_sampling_scheduler(config)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
-        self.prediction_type = config.prediction_type
 
     def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
@@ -145,15 +145,15 @@ class LocalDiffusion(nn.Module):
     def loss(
         self, object_centred: Tensor, scene: Tensor, goal: Tensor, generator: torch.Generator | None = None
     ) -> dict[str, Tensor]:
-        """Noise-prediction losses for clean goals (B, N, 3) in the placement frame."""
-        param = self.parameterization
+        """Denoising losses for clean goals (B, N, 3) in the placement frame, against the configured target."""
+        param, scheduler = self.parameterization, self.training_scheduler
         clean = param.encode(goal, object_centred)
         noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         device = generator.device if generator is not None else goal.device
-        t = torch.randint(0, self.scheduler.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
+        t = torch.randint(0, scheduler.config.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
         t = t.to(goal.device)
-        noisy = {k: self.scheduler.add_noise(clean[k], noise[k], t) for k in clean}
-        target = {k: self.scheduler.target(self.prediction_type, clean[k], noise[k], t) for k in clean}
+        noisy = {k: scheduler.add_noise(clean[k], noise[k], t) for k in clean}
+        target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
         return param.loss(self._predict(self.denoiser.context(object_centred, scene), noisy, t), target)
 
     @torch.no_grad()
@@ -168,21 +168,20 @@ class LocalDiffusion(nn.Module):
     ) -> Tensor:
         """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3)."""
         context = self.denoiser.context(object_centred, scene)
-        param = self.parameterization
+        param, scheduler = self.parameterization, self.sampling_scheduler
         state = param.initial_state(context.object_centred, generator)
-        for t, t_prev in self.scheduler.inference_timesteps(num_inference_steps):
-            steps = torch.full((scene.shape[0],), t, device=scene.device)
-            predicted = self._predict(context, state, steps)
+        scheduler.set_timesteps(num_inference_steps)
+        for t in scheduler.timesteps:
+            predicted = self._predict(context, state, t.expand(scene.shape[0]).to(scene.device))
             state = param.project(
                 {
-                    k: self.scheduler.step(
-                        self.scheduler.to_noise(self.prediction_type, predicted[k], state[k], t),
+                    k: scheduler.step(
+                        predicted[k],
                         t,
-                        t_prev,
                         state[k],
                         eta=eta,
-                        noise=randn_like(state[k], generator) if eta > 0 else None,
-                    )
+                        variance_noise=randn_like(state[k], generator) if eta > 0 else None,
+                    ).prev_sample
                     for k in state
                 }
             )
