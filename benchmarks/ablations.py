@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.metrics import paired_difference
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.maths.metrics import paired_difference
 from lerobot_taxdpd.sim.tasks import task_names
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -204,7 +204,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=DEFAULT_TASKS, choices=task_names())
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--config", type=Path, default=Path("configs/taxdpd_ablation.json"))
+    parser.add_argument("--config", type=Path, default=Path("lerobot_taxdpd/configs/taxdpd_ablation.json"))
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
     parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
     parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from lerobot_taxdpd.metrics import success_summary
+from lerobot_taxdpd.maths.metrics import success_summary
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target
@@ -73,8 +73,8 @@ def policy_latency(down_dims: tuple[int, ...], encoder: tuple[int, ...], points_
     from lerobot.configs.types import FeatureType, PolicyFeature
 
     from lerobot_taxdpd import GcDp3Config
-    from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-    from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+    from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
+    from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
 
     cloud = PolicyFeature(FeatureType.STATE, (512, 3))
     config = GcDp3Config(

@@ -2,7 +2,7 @@
 
 Converting is dominated by downsampling raw clouds of 30-60k points, so this times the FPS implementations
 one could use (fpsample's bucketed KD-line FPS, which the converters use; fpsample's plain FPS; open3d; the
-batched torch FPS of `lerobot_taxdpd.geometry`) and then whole conversions of RPDiff-size demos (child 30k,
+batched torch FPS of `lerobot_taxdpd.maths.geometry`) and then whole conversions of RPDiff-size demos (child 30k,
 parent 60k points, 512/1024 sampled, 2 samplings per demo). Demo files are written with the test suite's
 RPDiff fixture writer. Prints the machine, thread count and configuration beside the medians and writes
 everything as JSON.
@@ -62,7 +62,7 @@ def fps_options(points: np.ndarray, num_samples: int, repeats: int) -> list[dict
     import open3d as o3d
     import torch
 
-    from lerobot_taxdpd.geometry import farthest_point_indices, farthest_point_sample
+    from lerobot_taxdpd.maths.geometry import farthest_point_indices, farthest_point_sample
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     tensor = torch.from_numpy(points)[None]

@@ -19,10 +19,10 @@ from pathlib import Path
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.slot_demo import parse_args as demo_arguments
-from lerobot_taxdpd.slot_demo import prepare_output, train
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor, write_slot_dataset
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.apps.slot_demo import parse_args as demo_arguments
+from lerobot_taxdpd.apps.slot_demo import prepare_output, train
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, write_slot_dataset
 
 
 def main() -> None:

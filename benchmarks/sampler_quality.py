@@ -20,8 +20,8 @@ from pathlib import Path
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor
 
 SAMPLERS = (("ddpm", 100), ("ddim", 100), ("ddim", 20), ("ddim", 10), ("ddim", 5), ("ddim", 3))
 

@@ -21,9 +21,9 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, timed, write_json
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.synthetic import make_slot_scene
+from lerobot_taxdpd.reports.benchmarking import machine_info, timed, write_json
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.apps.synthetic import make_slot_scene
 
 # The authors' development code on this CPU (same batch and point counts), for comparison.
 REFERENCE = {"train_step_s_512x1024_batch16": 2.2, "sample_s_512x1024_k10": 48.0}

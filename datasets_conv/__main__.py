@@ -162,7 +162,7 @@ def _convert(args: argparse.Namespace, root: Path, command: str):
 
 
 def _push(root: Path, repo_id: str, private: bool) -> int:
-    from lerobot_taxdpd.dataset_writer import push_dataset
+    from lerobot_taxdpd.data.dataset_writer import push_dataset
 
     try:
         push_dataset(root, repo_id, private=private)
@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot.utils.constants import HF_LEROBOT_HOME
 
     from datasets_conv.raw_io import DemoError
-    from lerobot_taxdpd.validation import PointCloudError
+    from lerobot_taxdpd.data.validation import PointCloudError
 
     root = args.root if args.root is not None else HF_LEROBOT_HOME / args.repo_id
     try:

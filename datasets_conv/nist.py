@@ -35,10 +35,10 @@ from datasets_conv.pipeline import (
     write_dataset,
 )
 from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.geometry import transform_points
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features, placement_frame
-from lerobot_taxdpd.validation import check_rigid_transform
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
+from lerobot_taxdpd.maths.geometry import transform_points
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features, placement_frame
+from lerobot_taxdpd.data.validation import check_rigid_transform
 
 NPZ_FIELDS = ("action_init_points", "anchor_points", "goal_tf")
 TEACH_FILES = ("action.ply", "anchor.ply", "goal_tf.npy")

@@ -17,9 +17,9 @@ import numpy as np
 from tqdm import tqdm
 
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
-from lerobot_taxdpd.geometry import farthest_point_indices
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
+from lerobot_taxdpd.maths.geometry import farthest_point_indices
+from lerobot_taxdpd.data.validation import PointCloudError
 
 SPLITS = ("train", "val", "test", "all")
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.validation import PointCloudError, check_point_cloud
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud
 
 
 class DemoError(ValueError):

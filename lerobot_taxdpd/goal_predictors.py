@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.schema import METRICS_FILE
+from lerobot_taxdpd.data.schema import METRICS_FILE
 
 SHIPPED_DIR = Path(__file__).parent / "pretrained"
 
@@ -63,7 +63,7 @@ def resolve_goal_predictor(name_or_path: str | Path) -> str:
 
 def load_goal_predictor(name_or_path: str | Path, **kwargs):
     """A ready `TaxDPDPolicy` (eval mode) for a shipped name, a checkpoint folder or a Hub repo id."""
-    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+    from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 
     policy = TaxDPDPolicy.from_pretrained(resolve_goal_predictor(name_or_path), **kwargs)
     return policy.eval()

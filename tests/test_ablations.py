@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def tiny_config(path: Path) -> Path:
     """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
-    config = json.loads((ROOT / "configs" / "taxdpd_ablation.json").read_text())
+    config = json.loads((ROOT / "lerobot_taxdpd" / "configs" / "taxdpd_ablation.json").read_text())
     for flag in TINY_TAXDPD:
         field, value = flag.removeprefix("--policy.").split("=")
         config["policy"][field] = value if field == "device" else int(value)

@@ -14,9 +14,9 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, load_goal_predictor, make_gc_dp3_pre_post_processors
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
+from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.sim.cloth.cli import main
 
 CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))

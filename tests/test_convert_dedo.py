@@ -13,8 +13,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from datasets_conv.dedo import convert_dedo_goals, convert_dedo_rollouts
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import read_card_info
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import read_card_info
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,
@@ -24,7 +24,7 @@ from lerobot_taxdpd.schema import (
     STATE_KEY,
     SUCCESS_KEY,
 )
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.validation import PointCloudError
 
 
 class _TouchOnUnpickle:

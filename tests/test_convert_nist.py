@@ -12,9 +12,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from datasets_conv.nist import convert_nist, split_demos
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import read_card_info
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import read_card_info
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError
 
 
 def _check_goals(dataset: LeRobotDataset, truth: list[tuple[str, np.ndarray, np.ndarray]]) -> None:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, goal_prediction_features, placement_frame
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, goal_prediction_features, placement_frame
+from lerobot_taxdpd.data.validation import PointCloudError
 
 CARD = DatasetCardInfo(source="unit test", source_license="apache-2.0", command="pytest")
 

@@ -7,8 +7,8 @@ import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 
 from lerobot_taxdpd import GcDp3Config, make_gc_dp3_pre_post_processors
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
 
 CLOUDS = (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY)
 SMALL = {

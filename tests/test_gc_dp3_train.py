@@ -15,9 +15,9 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import TINY_GC_DP3 as TINY
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd.geometry import (
+from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
     farthest_point_indices,
     farthest_point_sample,
@@ -20,7 +20,7 @@ from lerobot_taxdpd.geometry import (
     rotation_angle,
     transform_points,
 )
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.validation import PointCloudError
 
 
 def random_transform(generator: torch.Generator) -> torch.Tensor:

@@ -8,7 +8,7 @@ import copy
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor, write_slot_dataset
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, write_slot_dataset
 
 N_O, N_S, K = 64, 128, 8
 STEPS = 500

@@ -11,10 +11,10 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 from conftest import TINY_TAXDPD as TINY
-from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.synthetic import make_slot_scene, write_slot_dataset
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
 
 @pytest.fixture(scope="module")
 def slot_dataset(tmp_path_factory):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd import metrics
-from lerobot_taxdpd.geometry import make_transform, rotation_about_z, transform_points
+from lerobot_taxdpd.maths import metrics
+from lerobot_taxdpd.maths.geometry import make_transform, rotation_about_z, transform_points
 
 
 def test_translation_rotation_and_rmse_of_a_known_motion():

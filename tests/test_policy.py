@@ -12,8 +12,8 @@ from lerobot.processor import PolicyProcessorPipeline
 
 from conftest import install_in_hub_cache
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError
 
 N_O, N_S = 32, 64
 

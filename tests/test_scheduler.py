@@ -2,7 +2,7 @@
 
 import torch
 
-from lerobot_taxdpd.schedulers import DiffusionScheduler
+from lerobot_taxdpd.policies.taxdpd.schedulers import DiffusionScheduler
 
 
 def test_schedule_ends_in_noise():

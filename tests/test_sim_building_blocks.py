@@ -9,8 +9,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from lerobot_taxdpd.geometry import matrix_to_quaternion_xyzw, quaternion_xyzw_to_matrix
-from lerobot_taxdpd.metrics import coverage_precision, coverage_precision_from_rmse, pairwise_rmse
+from lerobot_taxdpd.maths.geometry import matrix_to_quaternion_xyzw, quaternion_xyzw_to_matrix
+from lerobot_taxdpd.maths.metrics import coverage_precision, coverage_precision_from_rmse, pairwise_rmse
 from lerobot_taxdpd.sim.bodies import box, create_body, cylinder, prism
 from lerobot_taxdpd.sim.cameras import CameraSpec, orbit_cameras, render_segmented_clouds
 from lerobot_taxdpd.sim.controller import penetration, sweep_to_goal

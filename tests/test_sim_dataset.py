@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from conftest import run_cli
-from lerobot_taxdpd.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.generate import generate_dataset
 from lerobot_taxdpd.sim.tasks import get_task

@@ -22,9 +22,9 @@ import pybullet
 import torch
 from tqdm import tqdm
 
-from lerobot_taxdpd.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.maths.geometry import estimate_rigid_transform, transform_points
 from lerobot_taxdpd.goal_predictors import has_placement_distribution
-from lerobot_taxdpd.metrics import (
+from lerobot_taxdpd.maths.metrics import (
     coverage_precision_from_rmse,
     pairwise_rmse,
     point_rmse,

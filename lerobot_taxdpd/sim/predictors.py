@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import transform_points
+from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.sim.poses import perturbation, transform
 from lerobot_taxdpd.sim.trials import Trial
 

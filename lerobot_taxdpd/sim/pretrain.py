@@ -27,7 +27,7 @@ from lerobot_taxdpd.sim.harness import evaluate, write_report
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
 
-CPU_RECIPE = Path(__file__).resolve().parents[2] / "configs" / "taxdpd_cpu.json"
+CPU_RECIPE = Path(__file__).resolve().parents[1] / "configs" / "taxdpd_cpu.json"
 TRAIN_COMMAND_FILE = "train_command.txt"
 
 

@@ -14,7 +14,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS
 from lerobot_taxdpd.sim.cloth.datasets import DATASET_KINDS
 from lerobot_taxdpd.sim.cloth.scene import SPLITS
 

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,

@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.sim.cloth import checks
 from lerobot_taxdpd.sim.cloth.mesh import ClothMesh, SurfaceSamples, build_cloth_mesh, sample_surface, write_obj
 from lerobot_taxdpd.sim.cloth.scene import (

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_taxdpd.metrics import coverage_precision, success_summary
-from lerobot_taxdpd.schema import GOAL_CLOUD_KEY
+from lerobot_taxdpd.maths.metrics import coverage_precision, success_summary
+from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
 from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
@@ -50,7 +50,7 @@ def load_gc_dp3(path: str, device: str):
     """The policy and its saved processors from a checkpoint folder (`.../pretrained_model`)."""
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
+    from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
     policy = GcDp3Policy.from_pretrained(path)
     policy.config.device = device

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import torch
 
-from lerobot_taxdpd.geometry import fit_rigid_transform, rotation_angle
+from lerobot_taxdpd.maths.geometry import fit_rigid_transform, rotation_angle
 
 
 def _np(x) -> np.ndarray:

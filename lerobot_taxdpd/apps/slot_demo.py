@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
 
 MARKER = "metrics.json"
 
@@ -90,7 +90,7 @@ def train(
 
 
 def figures(policy, args: argparse.Namespace) -> list[str]:
-    from lerobot_taxdpd.plots import plot_goal_samples, plot_weight_map
+    from lerobot_taxdpd.reports.plots import plot_goal_samples, plot_weight_map
 
     rng = np.random.default_rng(4321)
     paths = []
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     sampling_seconds = time.perf_counter() - started
     print("[4/4] writing figures and metrics", flush=True)
     report = {
-        "task": "synthetic keyed box into one of two keyed slots (lerobot_taxdpd.synthetic)",
+        "task": "synthetic keyed box into one of two keyed slots (lerobot_taxdpd.apps.synthetic)",
         "metrics": metrics,
         "train_seconds": train_seconds,
         "evaluation_seconds": sampling_seconds,

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 from lerobot_taxdpd.goal_predictors import has_placement_distribution
-from lerobot_taxdpd.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
+from lerobot_taxdpd.data.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
 
 TASK = "put the keyed box into one of the two keyed slots, handle towards the post"
 
@@ -149,7 +149,7 @@ def write_slot_dataset(
     """A goal-prediction dataset of the slot task; each episode holds independent samplings of one demo."""
     rng = np.random.default_rng(seed)
     card = DatasetCardInfo(
-        source="synthetic keyed-box-into-slot scenes (lerobot_taxdpd.synthetic)",
+        source="synthetic keyed-box-into-slot scenes (lerobot_taxdpd.apps.synthetic)",
         source_license="apache-2.0",
         description="Two-mode synthetic placement task used by the built-in demo and the learning tests.",
         hub_license="apache-2.0",
@@ -197,7 +197,7 @@ def evaluate_slot_predictor(
     """
     import torch
 
-    from lerobot_taxdpd.metrics import pairwise_rmse, point_rmse, rotation_error_deg, translation_error
+    from lerobot_taxdpd.maths.metrics import pairwise_rmse, point_rmse, rotation_error_deg, translation_error
 
     rng = np.random.default_rng(seed)
     scenes = [make_slot_scene(rng, num_object_points, num_scene_points, yaw_range) for _ in range(num_scenes)]

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
-from lerobot_taxdpd.model.parameterizations import State, make_parameterization, randn_like
-from lerobot_taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
-from lerobot_taxdpd.schedulers import DiffusionScheduler
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
+from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
+from lerobot_taxdpd.policies.taxdpd.schedulers import DiffusionScheduler
 
 
 @dataclass

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.validation import check_point_cloud, check_same_shape
+from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
 
 ArrayLike = Tensor | np.ndarray
 

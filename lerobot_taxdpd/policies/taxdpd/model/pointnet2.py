@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lerobot_taxdpd.geometry import farthest_point_sample, gather_points
+from lerobot_taxdpd.maths.geometry import farthest_point_sample, gather_points
 
 
 @dataclass

@@ -26,7 +26,7 @@ from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 
 ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")

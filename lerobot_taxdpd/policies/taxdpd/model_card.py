@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
 
 _SWITCHES = (
     "use_gmm",

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import (
+from lerobot_taxdpd.maths.geometry import (
     fit_rigid_transform,
     matrix_to_rotation_6d,
     random_axis_angle_rotation,

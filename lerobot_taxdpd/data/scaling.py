@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.schema import OBJECT_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY
 
 logger = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import axis_angle_to_matrix, fit_rigid_transform, rotation_about_z, rotation_angle
+from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, fit_rigid_transform, rotation_about_z, rotation_angle
 
 #: Names of the figures `goal_turn_response` reports, with the answer of a correct predictor.
 IDEAL = {"scene_yaw": "the angle", "object_yaw": 0.0, "object_tilt": 0.0}

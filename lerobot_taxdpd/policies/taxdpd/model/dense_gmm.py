@@ -13,8 +13,8 @@ import math
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.model.dit import DiT, OutputHead
-from lerobot_taxdpd.model.pointnet2 import make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
 
 
 class DenseGMM(nn.Module):

@@ -19,8 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-from lerobot_taxdpd.benchmarking import write_json
-from lerobot_taxdpd.slot_demo import prepare_output
+from lerobot_taxdpd.reports.benchmarking import write_json
+from lerobot_taxdpd.apps.slot_demo import prepare_output
 
 SUMMARY = "summary.json"
 
@@ -70,7 +70,7 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--synthetic" in argv:
-        from lerobot_taxdpd.slot_demo import main as slot_demo
+        from lerobot_taxdpd.apps.slot_demo import main as slot_demo
 
         return slot_demo([a for a in argv if a != "--synthetic"])
     args = parse_args(argv)

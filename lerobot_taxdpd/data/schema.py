@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_taxdpd.validation import PointCloudError, check_point_cloud, check_rigid_transform, check_same_shape
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_rigid_transform, check_same_shape
 
 OBJECT_KEY = "observation.pointcloud.object"
 SCENE_KEY = "observation.pointcloud.scene"

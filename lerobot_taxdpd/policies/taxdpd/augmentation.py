@@ -8,7 +8,7 @@ import math
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import axis_angle_to_matrix, farthest_point_sample, rotation_about_z
+from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, farthest_point_sample, rotation_about_z
 
 
 def _uniform(batch: int, like: Tensor, generator: torch.Generator | None) -> Tensor:

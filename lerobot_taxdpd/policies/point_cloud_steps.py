@@ -9,7 +9,7 @@ from lerobot.processor import ObservationProcessorStep, PolicyActionProcessorSte
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE
 from torch import Tensor
 
-from lerobot_taxdpd.schema import OBJECT_KEY, POINT_CLOUD_PREFIX, SCENE_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY, POINT_CLOUD_PREFIX, SCENE_KEY
 
 
 @dataclass

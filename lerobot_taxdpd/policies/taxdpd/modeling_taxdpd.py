@@ -20,22 +20,22 @@ from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
 from torch import Tensor, nn
 
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot_taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_start_pose, random_z_rotation
-from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.geometry import (
+from lerobot_taxdpd.policies.taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_start_pose, random_z_rotation
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
     farthest_point_sample,
     gather_points,
     lift_point_motion,
     nearest_indices,
 )
-from lerobot_taxdpd.model.dense_gmm import DenseGMM
-from lerobot_taxdpd.model.local_diffusion import LocalDiffusion
-from lerobot_taxdpd.model.parameterizations import randn_like
-from lerobot_taxdpd.model_card import render_model_card
-from lerobot_taxdpd.scaling import estimate_point_scale, object_radius
-from lerobot_taxdpd.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.validation import PointCloudError, check_point_cloud, check_same_shape
+from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
+from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
+from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
+from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
+from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
+from lerobot_taxdpd.data.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
 
 logger = logging.getLogger(__name__)
 
