@@ -27,7 +27,7 @@ from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
-from lerobot_taxdpd.sim.harness import machine_info, write_report
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 
 def expert_costs(split: str, seeds: range) -> dict:
@@ -126,7 +126,7 @@ def main() -> int:
             policy_latency((64, 128, 256), (32, 64, 128), 128),
             policy_latency((512, 1024, 2048), (64, 128, 256), None),
         ]
-    path = write_report(report, args.output)
+    path = write_json(args.output, report)
     for split, figures in report["expert"].items():
         print(
             f"expert {split}: success {figures['success_rate']:.2f} [{figures['ci95_low']:.2f}, {figures['ci95_high']:.2f}]"

@@ -26,6 +26,19 @@ def test_winner_take_all_picks_the_best_sample():
     assert metrics.winner_take_all_rmse(samples, target)[0] == pytest.approx(0.01 * math.sqrt(3))
 
 
+def test_each_sample_is_scored_against_the_valid_goal_it_went_for():
+    cloud = np.random.default_rng(1).normal(size=(50, 3))
+    turn = make_transform(rotation_about_z(torch.tensor(math.radians(5.0), dtype=torch.float64)), torch.zeros(3, dtype=torch.float64))
+    goals = np.stack([cloud, cloud + [2.0, 0.0, 0.0]])  # two valid goals, 2 m apart
+    samples = np.stack([goals[1] + [0.0, 0.01, 0.0], transform_points(turn.numpy(), goals[0])])
+    scores = metrics.score_against_valid_goals(samples, goals)
+    assert scores.nearest.tolist() == [1, 0]
+    assert scores.rmse.shape == (2, 2)
+    assert scores.translation_error == pytest.approx([0.01, np.linalg.norm(samples[1].mean(0) - cloud.mean(0))])
+    assert scores.rotation_error_deg == pytest.approx([0.0, 5.0], abs=1e-4)
+    assert scores.nearest_rmse[0] == pytest.approx(0.01)
+
+
 def test_coverage_and_precision_of_multimodal_samples():
     goals = np.stack([np.zeros((5, 3)), np.ones((5, 3))])  # two valid goals
     samples = np.stack([np.zeros((5, 3)), np.zeros((5, 3)) + 0.001, np.full((5, 3), 5.0)])

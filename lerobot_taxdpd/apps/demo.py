@@ -44,7 +44,7 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
     """The held-out report of one task and its path: the shipped predictor evaluated here, or one trained
     from scratch (the pretrain pipeline evaluates it)."""
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
-    from lerobot_taxdpd.sim.harness import evaluate, write_report
+    from lerobot_taxdpd.sim.harness import evaluate
     from lerobot_taxdpd.sim.pretrain import CPU_RECIPE, pretrain
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
@@ -64,7 +64,7 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
         num_figures=args.figures, total=args.trials,
     )
     report["predictor"] = f"shipped:{task_name}"
-    return report, write_report(report, args.output / f"{task_name}_eval.json")
+    return report, write_json(args.output / f"{task_name}_eval.json", report)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -197,7 +197,7 @@ def evaluate_slot_predictor(
     """
     import torch
 
-    from lerobot_taxdpd.maths.metrics import pairwise_rmse, point_rmse, rotation_error_deg, translation_error
+    from lerobot_taxdpd.maths.metrics import point_rmse, score_against_valid_goals
 
     rng = np.random.default_rng(seed)
     scenes = [make_slot_scene(rng, num_object_points, num_scene_points, yaw_range) for _ in range(num_scenes)]
@@ -206,14 +206,12 @@ def evaluate_slot_predictor(
     goals = predictor.sample_goals(obj, scene, num_samples, **sample_kwargs).cpu().numpy()
     coverage, translation, rotation, nearest_rmse, wta_rmse = [], [], [], [], []
     for i, s in enumerate(scenes):
-        rmse = pairwise_rmse(goals[i], s.valid_goals)  # (K, 2)
-        coverage.append(float((rmse.min(0) < coverage_threshold).mean()))
-        nearest_rmse += rmse.min(1).tolist()
+        scores = score_against_valid_goals(goals[i], s.valid_goals)  # each sample against its nearest slot
+        coverage.append(float((scores.rmse.min(0) < coverage_threshold).mean()))
+        nearest_rmse += scores.nearest_rmse.tolist()
         wta_rmse.append(float(point_rmse(goals[i], s.goal_points).min()))  # vs the demonstrated goal
-        for k in range(num_samples):
-            target = s.valid_goals[rmse[k].argmin()]
-            translation.append(float(translation_error(goals[i, k], target)))
-            rotation.append(float(rotation_error_deg(goals[i, k], target)))
+        translation += scores.translation_error.tolist()
+        rotation += scores.rotation_error_deg.tolist()
     result = {
         "rmse_mm": 1000 * float(np.median(nearest_rmse)),
         "wta_rmse_mm": 1000 * float(np.mean(wta_rmse)),

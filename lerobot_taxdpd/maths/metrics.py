@@ -7,6 +7,7 @@ each function (metres unless `_mm`/`_deg`).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -51,6 +52,36 @@ def transform_errors(predicted_transform, true_transform) -> tuple[np.ndarray, n
 def pairwise_rmse(predictions, goals) -> np.ndarray:
     """RMSE matrix between K predictions (K, N, 3) and M valid goals (M, N, 3) -> (K, M)."""
     return point_rmse(_np(predictions)[:, None], _np(goals)[None])
+
+
+@dataclass(frozen=True)
+class NearestGoalScores:
+    """K sampled goals, each scored against the valid goal nearest to it (metres and degrees)."""
+
+    rmse: np.ndarray  # (K, M): every sample against every valid goal
+    nearest: np.ndarray  # (K,): index of each sample's nearest valid goal
+    nearest_rmse: np.ndarray  # (K,)
+    translation_error: np.ndarray  # (K,) to that goal
+    rotation_error_deg: np.ndarray  # (K,) to that goal
+
+
+def score_against_valid_goals(samples, valid_goals) -> NearestGoalScores:
+    """Score K samples (K, N, 3) against M valid goals (M, N, 3) of one scene.
+
+    A sample that solves the scene another valid way is not penalised: its errors are measured against the
+    valid goal nearest to it (by per-point RMSE), not against the one a demonstrator happened to choose.
+    """
+    samples, valid_goals = _np(samples), _np(valid_goals)
+    rmse = pairwise_rmse(samples, valid_goals)
+    nearest = rmse.argmin(1)
+    targets = valid_goals[nearest]
+    return NearestGoalScores(
+        rmse=rmse,
+        nearest=nearest,
+        nearest_rmse=rmse.min(1),
+        translation_error=translation_error(samples, targets),
+        rotation_error_deg=rotation_error_deg(samples, targets),
+    )
 
 
 def coverage_precision(predictions, goals, threshold: float) -> dict[str, float]:

@@ -1,4 +1,5 @@
-"""What every benchmark prints beside its figures: the machine, the thread count, and medians of repeats."""
+"""What every benchmark and evaluation report records beside its figures: the machine, the thread count and
+the library versions, medians of repeats, and the JSON file itself (written atomically)."""
 
 from __future__ import annotations
 
@@ -22,11 +23,23 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def machine_info(**versions: str) -> dict:
-    """Machine, load and library versions; callers add the versions of what they exercise."""
+#: Libraries whose version a report names when the run has loaded them (name -> how to read it).
+_OPTIONAL_LIBRARIES = {
+    "pybullet": ("pybullet_api", lambda module: module.getAPIVersion()),
+    "open3d": ("open3d", lambda module: module.__version__),
+    "fpsample": ("fpsample", lambda module: getattr(module, "__version__", "unknown")),
+}
+
+
+def machine_info(**versions: object) -> dict:
+    """Machine, load and library versions: numpy and torch, the optional libraries this process has loaded
+    (pybullet for a simulation report, open3d and fpsample for a converter's), and any `versions` given."""
     import numpy as np
     import torch
 
+    loaded = {
+        key: read(sys.modules[name]) for name, (key, read) in _OPTIONAL_LIBRARIES.items() if name in sys.modules
+    }
     return {
         "platform": platform.platform(),
         "cpu": cpu_model(),
@@ -36,6 +49,7 @@ def machine_info(**versions: str) -> dict:
         "python": sys.version.split()[0],
         "numpy": np.__version__,
         "torch": torch.__version__,
+        **loaded,
         **versions,
     }
 
@@ -53,7 +67,10 @@ def timed(run: Callable[[], object], repeats: int, warmup: int = 1) -> tuple[flo
 
 
 def write_json(path: str | Path, payload: dict) -> Path:
+    """Write `payload` as indented JSON; a crash never leaves a half-written file behind."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2))
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(json.dumps(payload, indent=2))
+    os.replace(partial, path)
     return path

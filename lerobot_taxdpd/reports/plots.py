@@ -1,5 +1,6 @@
 """PNG figures of goal predictions: sampled goal clouds in their scene, and the Dense GMM's weight map.
 
+One set of figures for every caller (the simulation harness, the synthetic demo): plain arrays in metres.
 Matplotlib with the Agg backend, so figures render headless. Each figure shows the scene from an oblique
 and a top view with equal axis scales (distorted axes hide exactly the errors that matter).
 """
@@ -44,9 +45,13 @@ def plot_goal_samples(
     samples: np.ndarray,
     *,
     valid_goals: Sequence[np.ndarray] = (),
+    goals_label: str = "valid goals",
     title: str = "",
 ) -> Path:
-    """Scene (grey), object at its start (blue), valid goals (green) and the K sampled goals (colours)."""
+    """Scene (grey), object at its start (blue), valid goals (green) and the K sampled goals (colours).
+
+    `goals_label` names the green clouds in the legend, e.g. "ground-truth goal" for a demonstration's.
+    """
     fig = plt.figure(figsize=(12, 6))
     colours = SAMPLE_COLOURS[np.arange(len(samples)) % len(SAMPLE_COLOURS)]
     everything = np.concatenate([scene_points, object_points, *samples, *valid_goals])
@@ -55,7 +60,7 @@ def plot_goal_samples(
         ax.scatter(*scene_points.T, s=1, c="0.6", label="scene")
         ax.scatter(*object_points.T, s=1, c="tab:blue", label="object (start)")
         for g, goal in enumerate(valid_goals):
-            ax.scatter(*goal.T, s=2, c="tab:green", alpha=0.35, label="valid goals" if g == 0 else None)
+            ax.scatter(*goal.T, s=2, c="tab:green", alpha=0.35, label=goals_label if g == 0 else None)
         for k, (sample, colour) in enumerate(zip(samples, colours, strict=True)):
             ax.scatter(*sample.T, s=1, color=colour, alpha=0.7, label="sampled goals" if k == 0 else None)
         _equal_axes(ax, everything)
@@ -73,6 +78,7 @@ def plot_weight_map(
     means: np.ndarray,
     *,
     goal_centroids: np.ndarray | None = None,
+    centroids_label: str = "valid goal centroids",
     title: str = "",
 ) -> Path:
     """Scene points coloured by their Dense-GMM weight (log scale), the heaviest means and the true goal(s)."""
@@ -82,11 +88,18 @@ def plot_weight_map(
     marks = np.zeros((0, 3)) if goal_centroids is None else np.atleast_2d(goal_centroids)
     for i, (elevation, azimuth) in enumerate(VIEWS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
-        points = ax.scatter(*scene_points[order].T, s=3, c=log_weights[order], cmap="viridis")
+        points = ax.scatter(
+            *scene_points[order].T,
+            s=3,
+            c=log_weights[order],
+            cmap="viridis",
+            vmin=log_weights.min(),
+            vmax=max(log_weights.max(), log_weights.min() + 1e-3),  # a flat map still gets a colour bar
+        )
         top = order[-10:]
         ax.scatter(*means[top].T, s=12, c="tab:red", marker="x", label="means of the 10 heaviest components")
         if len(marks):
-            ax.scatter(*marks.T, s=80, c="tab:green", marker="*", label="valid goal centroids")
+            ax.scatter(*marks.T, s=80, c="tab:green", marker="*", label=centroids_label)
         _equal_axes(ax, np.concatenate([scene_points, marks]))
         ax.view_init(elevation, azimuth)
     fig.colorbar(points, ax=fig.axes, shrink=0.6, label="log10 GMM weight")

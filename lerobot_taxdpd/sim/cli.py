@@ -122,7 +122,8 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from lerobot_taxdpd.sim.harness import evaluate, write_report
+    from lerobot_taxdpd.reports.benchmarking import write_json
+    from lerobot_taxdpd.sim.harness import evaluate
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.sim.predictors import OraclePredictor, load_predictor
     from lerobot_taxdpd.sim.tasks import get_task
@@ -158,7 +159,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         total=args.trials,
     )
     report["predictor"] = args.policy_path or args.predictor
-    path = write_report(report, args.output / f"{task.name}_eval.json")
+    path = write_json(args.output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(
         f"{task.name}: success {s['success_rate']:.1%} (95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%}) over "

@@ -23,7 +23,8 @@ from pathlib import Path
 from safetensors.torch import load_file, save_file
 
 from lerobot_taxdpd.sim.generate import generate_dataset
-from lerobot_taxdpd.sim.harness import evaluate, write_report
+from lerobot_taxdpd.reports.benchmarking import write_json
+from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
 
@@ -125,7 +126,7 @@ def pretrain(
     held_out = (make_trial(task, seed, "test") for seed in range(trials))
     report = evaluate(policy, held_out, num_samples, figures_dir=output / "figures", total=trials)
     report["predictor"] = str(destination or checkpoint)
-    write_report(report, output / f"{task.name}_eval.json")
+    write_json(output / f"{task.name}_eval.json", report)
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     metrics = {
         "task": task.name,

@@ -29,7 +29,7 @@ from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
 from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
-from lerobot_taxdpd.sim.harness import machine_info, write_report
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 
 @dataclass(frozen=True)
@@ -237,7 +237,7 @@ def evaluate(
         for i, s in enumerate(range(seed, seed + trials))
     ]
     summary = summarise(list(run_trials(requests, workers)), config, workers)
-    write_report(summary, output / "eval_cloth_hang.json")
+    write_json(output / "eval_cloth_hang.json", summary)
     return summary
 
 
