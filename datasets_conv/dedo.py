@@ -26,6 +26,7 @@ from datasets_conv.pipeline import (
     DemoRef,
     card_details,
     demo_rng,
+    sampled_frames,
     sampling_indices,
     write_dataset,
 )
@@ -44,7 +45,6 @@ from lerobot_taxdpd.data.schema import (
     SUCCESS_KEY,
     cloth_policy_features,
     goal_prediction_features,
-    placement_frame,
 )
 from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
 
@@ -101,13 +101,7 @@ def goal_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
     check_same_shape(cloth, flow, f"{demo.source}: field 'action_pc'", "field 'flow'")
     hangers = as_cloud(read_field(archive, demo.source, "anchor_pc"), demo.source, "anchor_pc", min_points=num_scene)
     goal = cloth + flow
-    rng = demo_rng(options.seed, demo.source)
-    object_views = sampling_indices(cloth, num_object, options.frames_per_demo, rng)
-    scene_views = sampling_indices(hangers, num_scene, options.frames_per_demo, rng)
-    frames = [
-        placement_frame(cloth[o], hangers[s], goal[o], source=demo.source) for o, s in zip(object_views, scene_views)
-    ]
-    return frames, task
+    return sampled_frames(demo.source, cloth, hangers, counts, options, goal_points=goal), task
 
 
 # -------------------------------------------------------------------------------------- policy rollouts

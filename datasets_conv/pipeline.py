@@ -18,7 +18,8 @@ from tqdm import tqdm
 
 from datasets_conv.raw_io import DemoError
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
-from lerobot_taxdpd.maths.geometry import farthest_point_indices
+from lerobot_taxdpd.data.schema import placement_frame
+from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 from lerobot_taxdpd.data.validation import PointCloudError
 
 SPLITS = ("train", "val", "test", "all")
@@ -109,6 +110,33 @@ def sampling_indices(points: np.ndarray, num_points: int, count: int, rng: np.ra
     n = points.shape[0]
     starts = rng.choice(n, size=count, replace=count > n)
     return [farthest_point_indices(points, num_points, start_index=int(s)) for s in starts]
+
+
+def sampled_frames(
+    source: str,
+    object_points: np.ndarray,
+    scene_points: np.ndarray,
+    counts: tuple[int, int],
+    options: ConversionOptions,
+    *,
+    goal_points: np.ndarray | None = None,
+    transform: np.ndarray | None = None,
+) -> list[dict[str, np.ndarray]]:
+    """The frames of one demo: `options.frames_per_demo` farthest-point samplings of its clouds.
+
+    The goal rows are taken with the object's indices from `goal_points`, or, for rigid sources, computed
+    as `transform` applied to the sampled object, so row i of every goal is where row i of its start goes.
+    Samplings depend only on the seed and `source` (see `demo_rng`).
+    """
+    rng = demo_rng(options.seed, source)
+    object_views = sampling_indices(object_points, counts[0], options.frames_per_demo, rng)
+    scene_views = sampling_indices(scene_points, counts[1], options.frames_per_demo, rng)
+    frames = []
+    for object_index, scene_index in zip(object_views, scene_views, strict=True):
+        points = object_points[object_index]
+        goal = transform_points(transform, points) if goal_points is None else goal_points[object_index]
+        frames.append(placement_frame(points, scene_points[scene_index], goal, transform, source=source))
+    return frames
 
 
 def write_dataset(
