@@ -1,7 +1,7 @@
 """The ablation table: every switch of the paper's ablation study, trained and evaluated under one budget.
 
 Each (task, variant) is one `python -m lerobot_taxdpd.sim pretrain` run with the same demonstrations (shared
-per task), the same recipe (`configs/taxdpd_ablation.json` by default: hidden 32, 2 DiT blocks, 64/128
+per task), the same recipe (the shipped `taxdpd_ablation` by default: hidden 32, 2 DiT blocks, 64/128
 points seen by the network, batch 16, 600 steps; about 6 minutes a run on one core of a 2-core CPU), and
 the same 100 held-out trials with K = 10 goals. Finished runs are reused, so an interrupted table resumes
 where it stopped.
@@ -27,9 +27,9 @@ import numpy as np
 
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.maths.metrics import paired_difference
+from lerobot_taxdpd.recipes import run
 from lerobot_taxdpd.sim.tasks import task_names
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Variant -> (the paper's ablation row, lerobot-train flags); the flags are explained in docs/taxdpd.md.
 VARIANTS: dict[str, tuple[str, list[str]]] = {
     "full": ("TAX-DPD", []),
@@ -69,22 +69,15 @@ PAPER = {
 DEFAULT_TASKS = ["mug_medrack", "book_shelf", "insert_waterproof"]
 
 
-def run_command(task: str, variant: str, args: argparse.Namespace, python: str = sys.executable) -> list[str]:
+def run_command(task: str, variant: str, args: argparse.Namespace) -> list[str]:
+    """The `sim pretrain` command of one cell, as recorded in the table and run by `recipes.run`."""
     work = args.output / task
     return [
-        python, "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
+        "python", "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
         f"--episodes={args.episodes}", f"--trials={args.trials}", f"--num-samples={args.num_samples}",
         f"--dataset={work / 'data'}", f"--output={work / variant}",
         *([f"--steps={args.steps}"] if args.steps else []), *VARIANTS[variant][1],
     ]
-
-
-def run_logged(command: list[str], log: Path, threads: int) -> None:
-    """One child process with its own thread budget; its output goes to `log` (the table reads metrics.json)."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
-    with log.open("w") as stream:
-        subprocess.run(command, stdout=stream, stderr=subprocess.STDOUT, env=env, check=True, cwd=ROOT)
 
 
 def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | None:
@@ -93,12 +86,12 @@ def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | No
     if (data / "meta" / "info.json").is_file():
         return None
     command = [
-        sys.executable, "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
+        "python", "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
         "--split=train", f"--repo-id=local/{task}", f"--root={data}",
     ]
     log = args.output / task / "generate.log"
     try:
-        run_logged(command, log, threads)
+        run(command, log=log, threads=threads)
     except subprocess.CalledProcessError as error:
         return f"{task}: generating demonstrations failed with exit status {error.returncode}, see {log}"
     return None
@@ -112,7 +105,7 @@ def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, thread
     started = time.perf_counter()
     log = folder.with_suffix(".log")
     try:
-        run_logged(run_command(task, variant, args), log, threads)
+        run(run_command(task, variant, args), log=log, threads=threads)
     except subprocess.CalledProcessError as error:
         return f"{task} / {variant}: exit status {error.returncode}, see {log}"
     print(f"{task} / {variant}: {(time.perf_counter() - started) / 60:.1f} min", flush=True)
@@ -148,7 +141,7 @@ def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[t
         "coverage_threshold_mm": metrics.get("coverage_threshold_mm"),
         "paper_success_rate": PAPER.get(task, {}).get(variant),
         "train_seconds": metrics["train_seconds"],
-        "command": " ".join(str(part) for part in run_command(task, variant, args, python="python")),
+        "command": " ".join(str(part) for part in run_command(task, variant, args)),
     }
 
 
@@ -204,7 +197,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=DEFAULT_TASKS, choices=task_names())
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--config", type=Path, default=Path("lerobot_taxdpd/configs/taxdpd_ablation.json"))
+    parser.add_argument(
+        "--config", default="taxdpd_ablation", help="a shipped recipe name or a config file (default: taxdpd_ablation)"
+    )
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
     parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
     parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")

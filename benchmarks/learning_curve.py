@@ -13,6 +13,7 @@ the wall time of training up to that checkpoint. Prints the machine and writes J
 from __future__ import annotations
 
 import argparse
+import shlex
 import time
 from pathlib import Path
 
@@ -80,7 +81,7 @@ def main() -> None:
         )
     payload = {
         "machine": machine, "config": vars(args) | {"work_dir": str(args.work_dir)}, "train_seconds": train_seconds,
-        "train_command": " ".join(command[2:]).replace("lerobot.scripts.lerobot_train", "lerobot-train", 1),
+        "train_command": shlex.join(map(str, command)),
         "results": rows,
     }
     print(f"wrote {write_json(args.output, payload)}")

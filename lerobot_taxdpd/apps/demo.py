@@ -52,7 +52,7 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
     if args.from_scratch:
         work = args.output / "train" / task_name
         pretrain(
-            task_name, work, episodes=200, steps=None, config_path=CPU_RECIPE, trials=args.trials,
+            task_name, work, episodes=200, steps=None, recipe=CPU_RECIPE, trials=args.trials,
             num_samples=args.num_samples, ship=None,
         )
         path = work / f"{task_name}_eval.json"

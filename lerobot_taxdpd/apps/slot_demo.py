@@ -9,15 +9,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from lerobot_taxdpd.recipes import run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
 
@@ -60,13 +60,8 @@ def train(
 
     `save_freq` keeps intermediate checkpoints (default: only the last); `use_amp` trains under bf16 autocast.
     """
-    command = [
-        sys.executable,
-        "-m",
-        "lerobot.scripts.lerobot_train",
+    flags = [
         "--policy.type=taxdpd",
-        "--dataset.repo_id=local/taxdpd_slots",
-        f"--dataset.root={dataset}",
         "--policy.push_to_hub=false",
         "--policy.device=cpu",
         f"--policy.hidden_dim={args.hidden_dim}",
@@ -82,11 +77,10 @@ def train(
         "--log_freq=100",
         "--num_workers=0",
         f"--seed={args.seed}",
-        f"--output_dir={args.output / 'train'}",
     ]
-    started = time.perf_counter()
-    subprocess.run(command, check=True)
-    return args.output / "train" / "checkpoints" / "last" / "pretrained_model", command, time.perf_counter() - started
+    command = train_command(dataset, "local/taxdpd_slots", args.output / "train", flags=flags)
+    seconds = run(command)
+    return args.output / "train" / "checkpoints" / "last" / "pretrained_model", command, seconds
 
 
 def figures(policy, args: argparse.Namespace) -> list[str]:
@@ -139,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         "train_seconds": train_seconds,
         "evaluation_seconds": sampling_seconds,
         "checkpoint": str(checkpoint),
-        "train_command": " ".join(command[2:]).replace("lerobot.scripts.lerobot_train", "lerobot-train", 1),
+        "train_command": shlex.join(map(str, command)),
         "figures": figures(policy, args),
         "machine": machine_info(),
         "arguments": {k: str(v) for k, v in vars(args).items()},

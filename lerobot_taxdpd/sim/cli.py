@@ -73,7 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain.add_argument("--task", required=True, choices=task_names())
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
     pretrain.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
-    pretrain.add_argument("--config", type=Path, default=None, help="lerobot-train config (default: configs/taxdpd_cpu.json)")
+    pretrain.add_argument(
+        "--config", default=None, help="a shipped recipe name or a lerobot-train config file (default: taxdpd_cpu)"
+    )
     pretrain.add_argument("--trials", type=int, default=100, help="held-out evaluation trials (default: 100)")
     pretrain.add_argument("--num-samples", type=int, default=10, help="goals sampled per trial, K (default: 10)")
     pretrain.add_argument("--output", type=Path, default=None, help="work folder (default: results/pretrain/<task>)")
@@ -92,7 +94,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         args.output or Path("results/pretrain") / args.task,
         episodes=args.episodes,
         steps=args.steps,
-        config_path=args.config or CPU_RECIPE,
+        recipe=args.config or CPU_RECIPE,
         trials=args.trials,
         num_samples=args.num_samples,
         ship=args.ship,
