@@ -4,9 +4,10 @@ import json
 
 import numpy as np
 import pytest
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
+from lerobot_taxdpd.data.scaling import SCALE_FILE, median_object_radius
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, goal_prediction_features, placement_frame
 from lerobot_taxdpd.data.validation import PointCloudError
 
@@ -43,6 +44,17 @@ def test_written_dataset_loads_with_lerobot_and_carries_a_card(tmp_path):
     _, skipped = read_card_info(root)
     assert skipped[0].source == "demo_9.npz"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no partial folder left
+
+
+def test_the_writer_records_the_median_object_radius_that_a_scan_of_the_data_finds(tmp_path):
+    root = tmp_path / "ds"
+    write(root, episodes=3)
+    recorded = json.loads((root / SCALE_FILE).read_text())
+    assert recorded["frames"] == 6 and recorded["field"] == OBJECT_KEY
+    meta = LeRobotDatasetMetadata("local/test", root=root)  # LeRobot loads the metadata folder beside it
+    assert meta.total_frames == 6
+    (root / SCALE_FILE).unlink()  # a dataset made elsewhere: its parquet files are scanned
+    assert median_object_radius(root) == recorded["median_object_radius"]
 
 
 def test_error_mid_conversion_leaves_nothing_behind(tmp_path):

@@ -1,7 +1,7 @@
 """One writer for every dataset the project produces: converters, simulated demos and cloth rollouts.
 
 It writes a LeRobot v3.0 dataset into a hidden partial folder beside the output and moves it into place
-only once it is complete, with a dataset card; an error or an interrupt leaves any earlier dataset at the
+only once it is complete, with a dataset card and the dataset's scale statistics (`scaling.SCALE_FILE`); an error or an interrupt leaves any earlier dataset at the
 output path untouched. Episodes are validated whole before any frame is buffered, so a bad demo can be
 skipped without leaving a half-filled episode behind.
 """
@@ -18,6 +18,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
+
+from lerobot_taxdpd.data.scaling import object_radius, write_scale_stats
+from lerobot_taxdpd.data.schema import OBJECT_KEY
 
 CARD_INFO_FILE = "meta/taxdpd_card.json"
 
@@ -73,6 +77,7 @@ class DatasetWriter:
         self.num_episodes = 0
         self.num_frames = 0
         self.skipped: list[SkippedItem] = []
+        self._object_radii: list[float] = []  # one a frame: the dataset's scale statistics
         self._partial: Path | None = None
         self._dataset = None
         if self.root.exists() and not overwrite:
@@ -113,6 +118,8 @@ class DatasetWriter:
                     )
                 staged = self._partial / "dataset"
                 write_card_info(staged, self.card, self.skipped)
+                if self._object_radii:
+                    write_scale_stats(staged, self._object_radii)
                 write_dataset_card(staged, self.repo_id)
                 self._publish(staged)
         finally:
@@ -147,6 +154,9 @@ class DatasetWriter:
         for frame in frames:
             self._dataset.add_frame({**frame, "task": task})
         self._dataset.save_episode()
+        if OBJECT_KEY in self.features:
+            clouds = torch.from_numpy(np.stack([frame[OBJECT_KEY] for frame in frames])).double()
+            self._object_radii += object_radius(clouds).tolist()
         self.num_episodes += 1
         self.num_frames += len(frames)
 

@@ -2,11 +2,15 @@
 
 The factor is computed once from the training data and stored in the checkpoint's config, so inference
 rescales exactly as training did. Object, scene and goal always share it (never per-axis statistics).
+The median object radius is a statistic of the dataset: the dataset writer, which sees every cloud, records
+it in `meta/taxdpd_scale.json`; datasets made elsewhere lack that file, and their parquet files are scanned.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +21,9 @@ import torch
 from torch import Tensor
 
 from lerobot_taxdpd.data.schema import OBJECT_KEY
+
+#: The dataset's scale statistics, beside LeRobot's own metadata (which ignores files it does not know).
+SCALE_FILE = "meta/taxdpd_scale.json"
 
 logger = logging.getLogger(__name__)
 
@@ -40,10 +47,28 @@ def read_object_clouds(dataset_root: str | Path, max_frames: int = 2000) -> np.n
     return values.reshape(len(rows), -1, 3)
 
 
+def write_scale_stats(dataset_root: str | Path, object_radii: Sequence[float]) -> Path:
+    """Record the median of the object radii of every frame (metres) in the dataset's metadata."""
+    radius = float(torch.tensor(list(object_radii), dtype=torch.float64).median())
+    path = Path(dataset_root) / SCALE_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"field": OBJECT_KEY, "median_object_radius": radius, "frames": len(object_radii)}, indent=2))
+    return path
+
+
+def median_object_radius(dataset_root: str | Path) -> float:
+    """The dataset's median object radius (metres): from its metadata, or scanned from its parquet files."""
+    path = Path(dataset_root) / SCALE_FILE
+    if path.is_file():
+        return float(json.loads(path.read_text())["median_object_radius"])
+    logger.info("%s: no %s (a dataset not written by lerobot_taxdpd); scanning its object clouds", dataset_root, SCALE_FILE)
+    clouds = torch.from_numpy(read_object_clouds(dataset_root)).double()
+    return float(object_radius(clouds).median())
+
+
 def estimate_point_scale(dataset_root: str | Path, object_scale: float) -> float:
     """Model units per metre for a dataset: object_scale / median object radius."""
-    clouds = torch.from_numpy(read_object_clouds(dataset_root)).double()
-    radius = float(object_radius(clouds).median())
+    radius = median_object_radius(dataset_root)
     if not radius > 0:
         raise ValueError(f"{dataset_root}: field '{OBJECT_KEY}' has zero extent; cannot derive point_scale")
     scale = object_scale / radius
