@@ -7,7 +7,7 @@ translation and rotation errors, coverage of both slots and the GMM's mass on th
 the wall time of training up to that checkpoint. Prints the machine and writes JSON.
 
     python benchmarks/learning_curve.py                          # results/learning_curve.json
-    python benchmarks/learning_curve.py --steps 600 --save-every 200 --num-object-points 256
+    python benchmarks/learning_curve.py --steps 600 --save-every 200 --object-cloud-size 256
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--save-every", type=int, default=250)
     parser.add_argument("--episodes", type=int, default=256)
-    parser.add_argument("--num-object-points", type=int, default=512)
-    parser.add_argument("--num-scene-points", type=int, default=1024)
+    parser.add_argument("--object-cloud-size", type=int, default=512, help="object points per cloud of the data")
+    parser.add_argument("--scene-cloud-size", type=int, default=1024, help="scene points per cloud of the data")
     parser.add_argument("--yaw-range", type=float, default=0.5)
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--fp32", action="store_true", help="train in fp32 instead of bf16 autocast")
@@ -46,13 +46,13 @@ def main() -> None:
         [
             "--output", str(args.work_dir), "--episodes", str(args.episodes), "--steps", str(args.steps),
             "--yaw-range", str(args.yaw_range), "--hidden-dim", "128", "--num-blocks", "5", "--lr", str(args.lr),
-            "--num-object-points", str(args.num_object_points), "--num-scene-points", str(args.num_scene_points),
+            "--object-cloud-size", str(args.object_cloud_size), "--scene-cloud-size", str(args.scene_cloud_size),
         ]
     )
     prepare_output(run.output)
     dataset = write_slot_dataset(
-        run.output / "data", episodes=run.episodes, num_object_points=run.num_object_points,
-        num_scene_points=run.num_scene_points, yaw_range=run.yaw_range, seed=0,
+        run.output / "data", episodes=run.episodes, object_cloud_size=run.object_cloud_size,
+        scene_cloud_size=run.scene_cloud_size, yaw_range=run.yaw_range, seed=0,
     )
     started = time.time()
     _, command, train_seconds = train(run, dataset, save_freq=args.save_every, use_amp=not args.fp32)
@@ -63,8 +63,8 @@ def main() -> None:
     print(f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
           f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
     task = dict(
-        num_scenes=args.scenes, num_samples=args.samples, num_object_points=run.num_object_points,
-        num_scene_points=run.num_scene_points, yaw_range=run.yaw_range,
+        num_scenes=args.scenes, num_samples=args.samples, num_object_points=run.object_cloud_size,
+        num_scene_points=run.scene_cloud_size, yaw_range=run.yaw_range,
     )
     rows = []
     for checkpoint in sorted((run.output / "train" / "checkpoints").glob("[0-9]*")):

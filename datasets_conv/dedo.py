@@ -202,7 +202,7 @@ def rollout_episode(
     if np.any(counts_field != vertices) or not num_object <= vertices <= padded:
         raise DemoError(
             f"{source}: field 'data/cloth' must hold one true vertex count per episode between "
-            f"{num_object} (--num-object-points) and {padded}, got {np.unique(counts_field).tolist()[:5]}"
+            f"{num_object} (--object-cloud-size) and {padded}, got {np.unique(counts_field).tolist()[:5]}"
         )
     cloth = data["action_pcd"][:, :vertices].astype(np.float64)
     goal = data["ground_truth"][:, :vertices].astype(np.float64)

@@ -36,10 +36,11 @@ class DemoRef:
 
 @dataclass
 class ConversionOptions:
-    """Choices shared by every source; `None` point counts mean the task's default from the paper."""
+    """Choices shared by every source; `None` cloud sizes (points stored per frame) mean the task's default
+    from the paper."""
 
-    num_object_points: int | None = None
-    num_scene_points: int | None = None
+    object_cloud_size: int | None = None
+    scene_cloud_size: int | None = None
     frames_per_demo: int = 2
     split: str = "all"
     seed: int = 0
@@ -56,13 +57,13 @@ class ConversionOptions:
             raise ValueError(
                 f"frames_per_demo: LeRobot 0.4.4 needs at least 2 frames per episode, got {self.frames_per_demo}"
             )
-        for name in ("num_object_points", "num_scene_points"):
+        for name in ("object_cloud_size", "scene_cloud_size"):
             value = getattr(self, name)
             if value is not None and value < 3:
                 raise ValueError(f"{name}: need at least 3 points, got {value}")
 
     def point_counts(self, default: tuple[int, int]) -> tuple[int, int]:
-        return (self.num_object_points or default[0], self.num_scene_points or default[1])
+        return (self.object_cloud_size or default[0], self.scene_cloud_size or default[1])
 
 
 @dataclass
@@ -185,12 +186,12 @@ def write_dataset(
     )
 
 
-def card_details(options: ConversionOptions, num_object_points: int, num_scene_points: int) -> dict[str, str]:
+def card_details(options: ConversionOptions, object_cloud_size: int, scene_cloud_size: int) -> dict[str, str]:
     """Card rows every converter records: how the clouds were sampled and which demos were taken."""
     return {
         "split": options.split,
         "sampling": (
-            f"farthest point sampling, {num_object_points} object / {num_scene_points} scene points; "
+            f"farthest point sampling, {object_cloud_size} object / {scene_cloud_size} scene points; "
             f"{options.frames_per_demo} samplings per demo seeded by random start indices (seed {options.seed})"
         ),
     }

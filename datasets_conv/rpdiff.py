@@ -209,7 +209,7 @@ def convert_rpdiff(raw_dir: Path, repo_id: str, root: Path, options: ConversionO
     counts = options.point_counts(DEFAULT_POINT_COUNTS.get(name, FALLBACK_POINT_COUNTS))
     task = options.task or (known.task if known else f"place the object as in RPDiff task {name}")
     demos, notes = list_demos(demo_dir, options.split)
-    if known is None and not (options.num_object_points and options.num_scene_points):
+    if known is None and not (options.object_cloud_size and options.scene_cloud_size):
         notes.append(f"{name} is not one of the paper's tasks; point counts not given default to {counts}")
     details = {"RPDiff task": name, **card_details(options, *counts)}
     if known:

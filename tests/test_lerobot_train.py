@@ -18,7 +18,7 @@ from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
 
 @pytest.fixture(scope="module")
 def slot_dataset(tmp_path_factory):
-    return write_slot_dataset(tmp_path_factory.mktemp("data") / "slots", episodes=8, num_object_points=32, num_scene_points=64)
+    return write_slot_dataset(tmp_path_factory.mktemp("data") / "slots", episodes=8, object_cloud_size=32, scene_cloud_size=64)
 
 
 def train(cli, dataset, output_dir, *args, steps=4):

@@ -35,7 +35,7 @@ def clouds(batch: int = 2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def test_point_scale_comes_from_the_dataset_metadata_or_a_scan_of_datasets_made_elsewhere(tmp_path):
-    root = write_slot_dataset(tmp_path / "slots", episodes=3, num_object_points=N_O, num_scene_points=N_S)
+    root = write_slot_dataset(tmp_path / "slots", episodes=3, object_cloud_size=N_O, scene_cloud_size=N_S)
     config = dict(hidden_dim=16, num_blocks=1, num_heads=2, object_scale=3.0, device="cpu")
     stats = json.loads((root / SCALE_FILE).read_text())
     written = TaxDPDPolicy(

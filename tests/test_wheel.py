@@ -74,7 +74,7 @@ def test_the_wheel_finds_its_recipes_and_trains_on_one_with_lerobot_train(wheel_
     recipe = Path(run_installed(wheel_site, cwd, python, "-m", "lerobot_taxdpd.recipes", "path", "taxdpd_ablation").strip())
     assert recipe.is_relative_to(wheel_site)
 
-    dataset = write_slot_dataset(tmp_path / "slots", episodes=4, num_object_points=32, num_scene_points=64)
+    dataset = write_slot_dataset(tmp_path / "slots", episodes=4, object_cloud_size=32, scene_cloud_size=64)
     run_installed(
         wheel_site,
         cwd,

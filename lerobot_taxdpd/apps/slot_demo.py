@@ -36,8 +36,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--yaw-range", type=float, default=0.5, help="slot and start yaws lie in +-this (radians)")
     parser.add_argument("--hidden-dim", type=int, default=48)
     parser.add_argument("--num-blocks", type=int, default=2)
-    parser.add_argument("--num-object-points", type=int, default=64)
-    parser.add_argument("--num-scene-points", type=int, default=128)
+    parser.add_argument(
+        "--object-cloud-size", type=int, default=64, help="object points per cloud of the data and the held-out scenes"
+    )
+    parser.add_argument("--scene-cloud-size", type=int, default=128, help="scene points per cloud, likewise")
     parser.add_argument("--samples", type=int, default=8, help="goals sampled per held-out scene")
     parser.add_argument("--scenes", type=int, default=12, help="held-out scenes to evaluate")
     parser.add_argument("--seed", type=int, default=1)
@@ -89,7 +91,7 @@ def figures(policy, args: argparse.Namespace) -> list[str]:
     rng = np.random.default_rng(4321)
     paths = []
     for index in range(2):
-        scene = make_slot_scene(rng, args.num_object_points, args.num_scene_points, args.yaw_range)
+        scene = make_slot_scene(rng, args.object_cloud_size, args.scene_cloud_size, args.yaw_range)
         obj, points = torch.from_numpy(scene.object_points)[None], torch.from_numpy(scene.scene_points)[None]
         goals = policy.sample_goals(obj, points, args.samples, generator=torch.Generator().manual_seed(index))[0].numpy()
         weights, means = (x[0].numpy() for x in policy.placement_distribution(obj, points))
@@ -115,14 +117,14 @@ def main(argv: list[str] | None = None) -> int:
     prepare_output(args.output)
     print(f"[1/4] writing {args.episodes} synthetic two-slot demos", flush=True)
     dataset = write_slot_dataset(
-        args.output / "data", episodes=args.episodes, num_object_points=args.num_object_points,
-        num_scene_points=args.num_scene_points, yaw_range=args.yaw_range, seed=0,
+        args.output / "data", episodes=args.episodes, object_cloud_size=args.object_cloud_size,
+        scene_cloud_size=args.scene_cloud_size, yaw_range=args.yaw_range, seed=0,
     )
     print(f"[2/4] training with lerobot-train for {args.steps} steps", flush=True)
     checkpoint, command, train_seconds = train(args, dataset)
     policy = TaxDPDPolicy.from_pretrained(checkpoint)
     print(f"[3/4] sampling {args.samples} goals on {args.scenes} held-out scenes", flush=True)
-    task = dict(num_samples=args.samples, num_object_points=args.num_object_points, num_scene_points=args.num_scene_points, yaw_range=args.yaw_range, num_scenes=args.scenes)
+    task = dict(num_samples=args.samples, num_object_points=args.object_cloud_size, num_scene_points=args.scene_cloud_size, yaw_range=args.yaw_range, num_scenes=args.scenes)
     started = time.perf_counter()
     metrics = evaluate_slot_predictor(policy, **task, generator=torch.Generator().manual_seed(0))
     sampling_seconds = time.perf_counter() - started

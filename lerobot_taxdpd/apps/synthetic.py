@@ -141,12 +141,13 @@ def write_slot_dataset(
     *,
     episodes: int = 64,
     frames_per_episode: int = 2,
-    num_object_points: int = 128,
-    num_scene_points: int = 256,
+    object_cloud_size: int = 128,
+    scene_cloud_size: int = 256,
     yaw_range: float = math.pi,
     seed: int = 0,
 ) -> Path:
-    """A goal-prediction dataset of the slot task; each episode holds independent samplings of one demo."""
+    """A goal-prediction dataset of the slot task; each episode holds independent samplings of one demo,
+    `object_cloud_size` / `scene_cloud_size` points each."""
     rng = np.random.default_rng(seed)
     card = DatasetCardInfo(
         source="synthetic keyed-box-into-slot scenes (lerobot_taxdpd.apps.synthetic)",
@@ -155,13 +156,13 @@ def write_slot_dataset(
         hub_license="apache-2.0",
         details={"seed": str(seed), "yaw_range_rad": f"{yaw_range:.3f}"},
     )
-    features = goal_prediction_features(num_object_points, num_scene_points, with_transform=True)
+    features = goal_prediction_features(object_cloud_size, scene_cloud_size, with_transform=True)
     with DatasetWriter(repo_id, root, features, fps=GOAL_DATASET_FPS, card=card) as writer:
         for episode in range(episodes):
             layout = sample_slot_layout(rng, yaw_range)
             frames = []
             for _ in range(frames_per_episode):
-                scene = render_slot_scene(layout, rng, num_object_points, num_scene_points)
+                scene = render_slot_scene(layout, rng, object_cloud_size, scene_cloud_size)
                 frames.append(
                     placement_frame(
                         scene.object_points,

@@ -50,12 +50,12 @@ def _cloud_feature(num_points: int) -> dict:
     return {"dtype": "float32", "shape": (num_points, 3), "names": None}
 
 
-def goal_prediction_features(num_object_points: int, num_scene_points: int, *, with_transform: bool) -> dict:
+def goal_prediction_features(object_cloud_size: int, scene_cloud_size: int, *, with_transform: bool) -> dict:
     """LeRobot feature spec of a goal-prediction dataset."""
     features = {
-        OBJECT_KEY: _cloud_feature(num_object_points),
-        SCENE_KEY: _cloud_feature(num_scene_points),
-        ACTION_KEY: _cloud_feature(num_object_points),
+        OBJECT_KEY: _cloud_feature(object_cloud_size),
+        SCENE_KEY: _cloud_feature(scene_cloud_size),
+        ACTION_KEY: _cloud_feature(object_cloud_size),
     }
     if with_transform:
         features[GOAL_TRANSFORM_KEY] = {"dtype": "float32", "shape": (4, 4), "names": None}
@@ -63,13 +63,13 @@ def goal_prediction_features(num_object_points: int, num_scene_points: int, *, w
 
 
 def cloth_policy_features(
-    num_object_points: int, num_scene_points: int, *, state_dim: int = 12, action_dim: int = 6
+    object_cloud_size: int, scene_cloud_size: int, *, state_dim: int = 12, action_dim: int = 6
 ) -> dict:
     """LeRobot feature spec of a goal-conditioned cloth-policy dataset (time series)."""
     return {
-        OBJECT_KEY: _cloud_feature(num_object_points),
-        SCENE_KEY: _cloud_feature(num_scene_points),
-        GOAL_CLOUD_KEY: _cloud_feature(num_object_points),
+        OBJECT_KEY: _cloud_feature(object_cloud_size),
+        SCENE_KEY: _cloud_feature(scene_cloud_size),
+        GOAL_CLOUD_KEY: _cloud_feature(object_cloud_size),
         STATE_KEY: {"dtype": "float32", "shape": (state_dim,), "names": None},
         ACTION_KEY: {"dtype": "float32", "shape": (action_dim,), "names": None},
         DONE_KEY: {"dtype": "bool", "shape": (1,), "names": None},

@@ -32,8 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--root", type=Path, required=True, help="output folder (for both: ROOT/goal and ROOT/policy)")
     generate.add_argument("--dataset", choices=DATASET_KINDS, default="both", help="which dataset(s) to write")
     generate.add_argument("--views", type=int, default=4, help="point samplings (frames) per goal-prediction episode")
-    generate.add_argument("--num-object-points", type=int, default=DEFAULT_POINT_COUNTS[TASK][0])
-    generate.add_argument("--num-scene-points", type=int, default=DEFAULT_POINT_COUNTS[TASK][1])
+    generate.add_argument(
+        "--object-cloud-size", type=int, default=DEFAULT_POINT_COUNTS[TASK][0], help="cloth points stored per frame"
+    )
+    generate.add_argument(
+        "--scene-cloud-size", type=int, default=DEFAULT_POINT_COUNTS[TASK][1], help="hanger points stored per frame"
+    )
     generate.add_argument("--overwrite", action="store_true", help="replace an existing dataset (only once complete)")
 
     evaluate = verbs.add_parser("eval", help="evaluate goal predictor and gc_dp3 on held-out scenes")
@@ -75,8 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             repo_id=args.repo_id,
             kind=args.dataset,
             views=args.views,
-            num_object_points=args.num_object_points,
-            num_scene_points=args.num_scene_points,
+            object_cloud_size=args.object_cloud_size,
+            scene_cloud_size=args.scene_cloud_size,
             workers=args.workers,
             overwrite=args.overwrite,
             command="python -m lerobot_taxdpd.sim " + shlex.join(argv),

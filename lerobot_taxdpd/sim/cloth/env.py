@@ -82,23 +82,23 @@ class ClothHangEnv(gym.Env):
     def __init__(
         self,
         split: str = "train",
-        num_object_points: int = DEFAULT_POINT_COUNTS["cloth_hang"][0],
-        num_scene_points: int = DEFAULT_POINT_COUNTS["cloth_hang"][1],
+        object_cloud_size: int = DEFAULT_POINT_COUNTS["cloth_hang"][0],
+        scene_cloud_size: int = DEFAULT_POINT_COUNTS["cloth_hang"][1],
         settings: SimSettings | None = None,
         ranges: SceneRanges | None = None,
     ) -> None:
-        for name, value in (("num_object_points", num_object_points), ("num_scene_points", num_scene_points)):
+        for name, value in (("object_cloud_size", object_cloud_size), ("scene_cloud_size", scene_cloud_size)):
             if value < 3:
                 raise ValueError(f"{name}: need at least 3 points, got {value}")
         self.split = split
-        self.num_object_points = num_object_points
-        self.num_scene_points = num_scene_points
+        self.object_cloud_size = object_cloud_size
+        self.scene_cloud_size = scene_cloud_size
         self.settings = settings or SimSettings()
         self.ranges = ranges or SceneRanges()
         self.observation_space = gym.spaces.Dict(
             {
-                OBJECT_KEY: gym.spaces.Box(-np.inf, np.inf, (num_object_points, 3), np.float32),
-                SCENE_KEY: gym.spaces.Box(-np.inf, np.inf, (num_scene_points, 3), np.float32),
+                OBJECT_KEY: gym.spaces.Box(-np.inf, np.inf, (object_cloud_size, 3), np.float32),
+                SCENE_KEY: gym.spaces.Box(-np.inf, np.inf, (scene_cloud_size, 3), np.float32),
                 STATE_KEY: gym.spaces.Box(-np.inf, np.inf, (12,), np.float32),
             }
         )
@@ -249,8 +249,8 @@ class ClothHangEnv(gym.Env):
             self._grippers.append(body)
             self._anchors.append(p.createSoftBodyAnchor(self._cloth, vertex, body, -1, physicsClientId=cid))
         rng = np.random.default_rng([SPLITS.index(scene.split), scene.seed, 1])
-        self.samples = sample_surface(self.mesh, self.num_object_points, rng)
-        self.hanger_points = hanger_surface_points(scene.hangers, self.num_scene_points, rng)
+        self.samples = sample_surface(self.mesh, self.object_cloud_size, rng)
+        self.hanger_points = hanger_surface_points(scene.hangers, self.scene_cloud_size, rng)
         self._velocity = np.zeros(6)
         self._steps = 0
         self._released = False
