@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.maths.metrics import paired_difference
 from lerobot_taxdpd.recipes import run
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import task_names
 
 #: Variant -> (the paper's ablation row, lerobot-train flags); the flags are explained in docs/taxdpd.md.
@@ -115,7 +115,9 @@ def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, thread
 def per_trial_wta_rmse(task: str, variant: str, args: argparse.Namespace) -> np.ndarray:
     """Winner-take-all RMSE (mm) of every held-out trial, in seed order (every variant sees the same seeds)."""
     report = json.loads((args.output / task / variant / f"{task}_eval.json").read_text())
-    return np.array([trial["winner_take_all_rmse_mm"] for trial in sorted(report["per_trial"], key=lambda t: t["seed"])])
+    return np.array(
+        [trial["winner_take_all_rmse_mm"] for trial in sorted(report["per_trial"], key=lambda t: t["seed"])]
+    )
 
 
 def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[tuple[str, str]]) -> dict:
@@ -124,7 +126,9 @@ def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[t
     coverage = next((key for key in metrics if key.startswith("coverage@")), None)
     versus_full = None
     if variant != "full" and (task, "full") in finished:
-        mean, low, high = paired_difference(per_trial_wta_rmse(task, variant, args), per_trial_wta_rmse(task, "full", args))
+        mean, low, high = paired_difference(
+            per_trial_wta_rmse(task, variant, args), per_trial_wta_rmse(task, "full", args)
+        )
         versus_full = {"mean_mm": mean, "ci95_mm": [low, high]}
     return {
         "task": task,
@@ -156,9 +160,12 @@ def markdown(rows: list[dict]) -> str:
         paper = f"{row['paper_success_rate']:.2f}" if row["paper_success_rate"] is not None else "-"
         cover = "-" if row["coverage"] is None else f"{row['coverage']:.2f} / {row['precision']:.2f}"
         versus = row["winner_take_all_rmse_vs_full"]
-        versus = "-" if versus is None else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
+        versus = (
+            "-" if versus is None else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
+        )
         lines.append(
-            f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | {row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
+            f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | "
+            f"{row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
             f"{row['translation_error_mm']:.1f} mm / {row['rotation_error_deg']:.1f} deg | "
             f"{row['winner_take_all_rmse_mm']:.1f} mm | {versus} | {cover} |"
         )
@@ -206,7 +213,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
     parser.add_argument("--jobs", type=int, default=1, help="runs at the same time (default: 1)")
     parser.add_argument("--output", type=Path, default=Path("results/ablations"))
-    parser.add_argument("--report-only", action="store_true", help="write the table from the finished runs, train nothing")
+    parser.add_argument(
+        "--report-only", action="store_true", help="write the table from the finished runs, train nothing"
+    )
     return parser.parse_args(argv)
 
 
@@ -219,9 +228,13 @@ def main(argv: list[str] | None = None) -> int:
     failures = []
     if not args.report_only:
         with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
-            failures = [error for error in pool.map(lambda task: generate_data(task, args, threads), args.tasks) if error]
+            failures = [
+                error for error in pool.map(lambda task: generate_data(task, args, threads), args.tasks) if error
+            ]
             ready = [job for job in jobs if not any(error.startswith(f"{job[0]}:") for error in failures)]
-            failures += [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), ready) if error]
+            failures += [
+                error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), ready) if error
+            ]
     finished = {job for job in jobs if (args.output / job[0] / job[1] / "metrics.json").is_file()}
     rows = [
         table_row(task, variant, args, finished)
@@ -232,7 +245,11 @@ def main(argv: list[str] | None = None) -> int:
     machine = machine_info()
     machine["torch_threads"] = threads
     payload = {
-        "machine": machine, "config": str(args.config), "jobs": args.jobs, "rows": rows, "failures": failures,
+        "machine": machine,
+        "config": str(args.config),
+        "jobs": args.jobs,
+        "rows": rows,
+        "failures": failures,
         "wall_seconds": time.perf_counter() - started,
     }
     write_json(args.output.with_suffix(".json"), payload)

@@ -66,7 +66,6 @@ def conversion_rate(num_demos: int, repeats: int, workdir: Path) -> dict:
     """Median demos/s of `convert_rpdiff` on RPDiff-size demos (imports and file writing of inputs excluded)."""
     sys.path.insert(0, str(REPO / "tests"))
     from convert_fixtures import rpdiff_demo, save_rpdiff_demo
-
     from datasets_conv.pipeline import ConversionOptions
     from datasets_conv.rpdiff import convert_rpdiff
 

@@ -20,10 +20,10 @@ from pathlib import Path
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.apps.slot_demo import parse_args as demo_arguments
 from lerobot_taxdpd.apps.slot_demo import prepare_output, train
 from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, write_slot_dataset
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 
 def main() -> None:
@@ -71,16 +71,23 @@ def main() -> None:
         model_dir = checkpoint / "pretrained_model"
         policy = TaxDPDPolicy.from_pretrained(model_dir)
         metrics = evaluate_slot_predictor(policy, **task, generator=torch.Generator().manual_seed(0))
-        row = {"step": int(checkpoint.name), "train_seconds": (model_dir / "model.safetensors").stat().st_mtime - started, **metrics}
+        row = {
+            "step": int(checkpoint.name),
+            "train_seconds": (model_dir / "model.safetensors").stat().st_mtime - started,
+            **metrics,
+        }
         rows.append(row)
         print(
             f"step {row['step']:>5} ({row['train_seconds'] / 60:5.1f} min): RMSE {row['rmse_mm']:.1f} mm, "
             f"WTA RMSE {row['wta_rmse_mm']:.1f} mm, translation {row['translation_error_mm']:.1f} mm, "
-            f"rotation {row['rotation_error_deg']:.1f} deg, coverage@{args.samples} {row[f'coverage@{args.samples}']:.2f}, "
+            f"rotation {row['rotation_error_deg']:.1f} deg, "
+            f"coverage@{args.samples} {row[f'coverage@{args.samples}']:.2f}, "
             f"GMM mass on slots {row.get('gmm_mass_on_slots', float('nan')):.2f}"
         )
     payload = {
-        "machine": machine, "config": vars(args) | {"work_dir": str(args.work_dir)}, "train_seconds": train_seconds,
+        "machine": machine,
+        "config": vars(args) | {"work_dir": str(args.work_dir)},
+        "train_seconds": train_seconds,
         "train_command": shlex.join(map(str, command)),
         "results": rows,
     }

@@ -26,9 +26,9 @@ from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import execute, make_trial
 
 
-def _timed(run) -> tuple[float, object]:
+def _timed(run, *args, **kwargs) -> tuple[float, object]:
     started = time.perf_counter()
-    result = run()
+    result = run(*args, **kwargs)
     return time.perf_counter() - started, result
 
 
@@ -36,11 +36,11 @@ def measure(task_name: str, trials: int, seed: int) -> dict:
     task = get_task(task_name)
     observe, place, episode = [], [], []
     for i in range(trials):
-        seconds, trial = _timed(lambda: make_trial(task, seed + i, "test"))
+        seconds, trial = _timed(make_trial, task, seed + i, "test")
         observe.append(seconds)
-        place.append(_timed(lambda: execute(trial, trial.goal_transform))[0])
-        episode.append(_timed(lambda: make_trial(task, seed + i, "train", num_views=2))[0])
-    per_trial = statistics.median([a + b for a, b in zip(observe, place)])
+        place.append(_timed(execute, trial, trial.goal_transform)[0])
+        episode.append(_timed(make_trial, task, seed + i, "train", num_views=2)[0])
+    per_trial = statistics.median([a + b for a, b in zip(observe, place, strict=True)])
     return {
         "trials": trials,
         "scene_and_observation_s": statistics.median(observe),

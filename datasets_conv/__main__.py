@@ -79,7 +79,7 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--object-cloud-size",
         type=int,
-        help="object points stored per frame (default: the task's; what the network sees is --policy.num_object_points)",
+        help="object points stored per frame (default: the task's; the network sees --policy.num_object_points)",
     )
     parser.add_argument("--scene-cloud-size", type=int, help="scene points stored per frame (default: the task's)")
     parser.add_argument("--split", choices=("train", "val", "test", "all"), default="all", help="default: all")

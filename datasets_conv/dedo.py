@@ -32,7 +32,6 @@ from datasets_conv.pipeline import (
 )
 from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.maths.geometry import farthest_point_indices
 from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DEFAULT_POINT_COUNTS,
@@ -47,6 +46,7 @@ from lerobot_taxdpd.data.schema import (
     goal_prediction_features,
 )
 from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
+from lerobot_taxdpd.maths.geometry import farthest_point_indices
 
 DEMO_GLOB = "demo_*.npz"
 GOAL_SPLIT_DIRS = {"train": ("train_tax3d", "train"), "val": ("val_tax3d", "val"), "test": ("val_ood_tax3d", "test")}

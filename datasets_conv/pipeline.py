@@ -19,8 +19,8 @@ from tqdm import tqdm
 from datasets_conv.raw_io import DemoError
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
 from lerobot_taxdpd.data.schema import placement_frame
-from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 from lerobot_taxdpd.data.validation import PointCloudError
+from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 
 SPLITS = ("train", "val", "test", "all")
 

@@ -30,9 +30,9 @@ from datasets_conv.pipeline import (
 )
 from datasets_conv.raw_io import DemoError, as_cloud, dict_entry, natural_key, open_npz, read_field, unwrap_dict
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.maths.geometry import pose_to_matrix, transform_points
 from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features
 from lerobot_taxdpd.data.validation import check_same_shape
+from lerobot_taxdpd.maths.geometry import pose_to_matrix, transform_points
 
 START_PCD = "multi_obj_start_pcd"
 FINAL_PCD = "multi_obj_final_pcd"

@@ -99,7 +99,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     for name, file in list_recipes().items():
         recipe = json.loads(file.read_text())
-        print(f"{name:<20} --policy.type={recipe['policy']['type']:<8} {recipe['steps']} steps, batch {recipe['batch_size']}")
+        print(
+            f"{name:<20} --policy.type={recipe['policy']['type']:<8} "
+            f"{recipe['steps']} steps, batch {recipe['batch_size']}"
+        )
     return 0
 
 

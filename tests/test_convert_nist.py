@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from convert_fixtures import leftovers, nist_demo, row_indices, save_nist_npz, save_nist_teach
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from convert_fixtures import leftovers, nist_demo, row_indices, save_nist_npz, save_nist_teach
 from datasets_conv.nist import convert_nist, split_demos
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError

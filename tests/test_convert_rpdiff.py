@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from convert_fixtures import leftovers, row_indices, rpdiff_demo, save_rpdiff_chunk, save_rpdiff_demo, write_split_info
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from convert_fixtures import leftovers, row_indices, rpdiff_demo, save_rpdiff_chunk, save_rpdiff_demo, write_split_info
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
 from datasets_conv.rpdiff import RPDIFF_TASKS, convert_rpdiff, find_demo_dir, identify_task

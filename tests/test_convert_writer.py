@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from convert_fixtures import leftovers
 
+from convert_fixtures import leftovers
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 
 

@@ -8,7 +8,13 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
 from lerobot_taxdpd.data.scaling import SCALE_FILE, median_object_radius
-from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, goal_prediction_features, placement_frame
+from lerobot_taxdpd.data.schema import (
+    ACTION_KEY,
+    GOAL_TRANSFORM_KEY,
+    OBJECT_KEY,
+    goal_prediction_features,
+    placement_frame,
+)
 from lerobot_taxdpd.data.validation import PointCloudError
 
 CARD = DatasetCardInfo(source="unit test", source_license="apache-2.0", command="pytest")
@@ -61,7 +67,9 @@ def test_error_mid_conversion_leaves_nothing_behind(tmp_path):
     root = tmp_path / "ds"
     rng = np.random.default_rng(0)
     with pytest.raises(RuntimeError, match="boom"):
-        with DatasetWriter("local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD) as w:
+        with DatasetWriter(
+            "local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD
+        ) as w:
             w.add_episode([frame(rng), frame(rng)], "place it")
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
@@ -74,7 +82,9 @@ def test_existing_output_is_refused_and_replaced_only_when_complete(tmp_path):
         write(root)
     before = json.loads((root / "meta" / "info.json").read_text())
     with pytest.raises(RuntimeError):
-        with DatasetWriter("local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD, overwrite=True):
+        with DatasetWriter(
+            "local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD, overwrite=True
+        ):
             raise RuntimeError("interrupted")
     assert json.loads((root / "meta" / "info.json").read_text()) == before  # the earlier dataset is intact
     write(root, episodes=3, overwrite=True)

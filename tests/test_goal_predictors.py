@@ -15,7 +15,9 @@ from lerobot_taxdpd.goal_predictors import SHIPPED_DIR, main, resolve_goal_predi
 
 def _saved_policy(folder, metrics=None) -> TaxDPDPolicy:
     torch.manual_seed(0)
-    config = TaxDPDConfig.for_point_clouds(16, 32, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu")
+    config = TaxDPDConfig.for_point_clouds(
+        16, 32, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu"
+    )
     policy = TaxDPDPolicy(config)
     policy.metrics = metrics or {}
     policy.save_pretrained(folder)

@@ -12,7 +12,10 @@ from lerobot_taxdpd.maths.geometry import make_transform, rotation_about_z, tran
 
 def test_translation_rotation_and_rmse_of_a_known_motion():
     cloud = np.random.default_rng(0).normal(size=(200, 3))
-    motion = make_transform(rotation_about_z(torch.tensor(math.radians(7.0), dtype=torch.float64)), torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64))
+    motion = make_transform(
+        rotation_about_z(torch.tensor(math.radians(7.0), dtype=torch.float64)),
+        torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64),
+    )
     moved = transform_points(motion.numpy(), cloud)
     assert metrics.rotation_error_deg(moved, cloud) == pytest.approx(7.0, abs=1e-6)
     shifted = cloud + np.array([0.003, 0.004, 0.0])
@@ -28,7 +31,9 @@ def test_winner_take_all_picks_the_best_sample():
 
 def test_each_sample_is_scored_against_the_valid_goal_it_went_for():
     cloud = np.random.default_rng(1).normal(size=(50, 3))
-    turn = make_transform(rotation_about_z(torch.tensor(math.radians(5.0), dtype=torch.float64)), torch.zeros(3, dtype=torch.float64))
+    turn = make_transform(
+        rotation_about_z(torch.tensor(math.radians(5.0), dtype=torch.float64)), torch.zeros(3, dtype=torch.float64)
+    )
     goals = np.stack([cloud, cloud + [2.0, 0.0, 0.0]])  # two valid goals, 2 m apart
     samples = np.stack([goals[1] + [0.0, 0.01, 0.0], transform_points(turn.numpy(), goals[0])])
     scores = metrics.score_against_valid_goals(samples, goals)

@@ -24,7 +24,15 @@ N_O, N_S = 32, 64
 def tiny_policy(**overrides) -> TaxDPDPolicy:
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(
-        N_O, N_S, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, num_inference_steps=2, device="cpu", **overrides
+        N_O,
+        N_S,
+        hidden_dim=16,
+        num_blocks=1,
+        num_heads=2,
+        point_scale=20.0,
+        num_inference_steps=2,
+        device="cpu",
+        **overrides,
     )
     return TaxDPDPolicy(config).eval()
 
@@ -190,7 +198,9 @@ def test_saved_processors_accept_lerobots_override_keys(tmp_path):
         "rename_observations_processor": {"rename_map": {}},
         "normalizer_processor": {"stats": None},
     }
-    reloaded = PolicyProcessorPipeline.from_pretrained(tmp_path, config_filename="policy_preprocessor.json", overrides=overrides)
+    reloaded = PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_preprocessor.json", overrides=overrides
+    )
     PolicyProcessorPipeline.from_pretrained(
         tmp_path, config_filename="policy_postprocessor.json", overrides={"unnormalizer_processor": {"stats": None}}
     )
@@ -210,7 +220,12 @@ def test_saved_processors_accept_lerobots_override_keys(tmp_path):
         {"use_rotation_noise": False},
         {"use_deformation_embedding": False},
         {"local_diffusion": "se3"},
-        {"use_gmm": False, "disentangled": False, "use_reconstruction_embedding": False, "use_deformation_embedding": False},
+        {
+            "use_gmm": False,
+            "disentangled": False,
+            "use_reconstruction_embedding": False,
+            "use_deformation_embedding": False,
+        },
     ],
 )
 def test_every_ablation_trains_and_samples(switches):

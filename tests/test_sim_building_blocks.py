@@ -109,7 +109,7 @@ def test_every_corner_of_a_connector_space_builds_solid_bodies(family):
     names = list(space.ranges)
     with physics_world() as client:
         for corner in itertools.product(*(space.ranges[name] for name in names)):
-            plug, socket = CONNECTOR_BUILDERS[family](dict(zip(names, corner)))
+            plug, socket = CONNECTOR_BUILDERS[family](dict(zip(names, corner, strict=True)))
             create_body(client, list(plug.parts), mass=0.02)
             create_body(client, list(socket.parts))
 

@@ -69,7 +69,7 @@ def test_generated_demos_round_trip_through_lerobot(tmp_path):
         progress=False,
     )
     _, frames_again = _frames(again, "local/again")
-    for a, b in zip(frames, frames_again):
+    for a, b in zip(frames, frames_again, strict=True):
         torch.testing.assert_close(a[OBJECT_KEY], b[OBJECT_KEY], atol=0, rtol=0)
         torch.testing.assert_close(a[ACTION_KEY], b[ACTION_KEY], atol=0, rtol=0)
 

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from conftest import run_cli
-from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.reports.benchmarking import write_json
+from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.predictors import GoalPredictor, OraclePredictor
 from lerobot_taxdpd.sim.tasks import get_task

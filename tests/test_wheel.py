@@ -15,8 +15,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from conftest import BIN, TINY_TAXDPD
 
+from conftest import BIN, TINY_TAXDPD
 from lerobot_taxdpd.apps.synthetic import write_slot_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,18 @@ def wheel_site(tmp_path_factory) -> Path:
             shutil.copytree(source, work / "src" / name, ignore=shutil.ignore_patterns("__pycache__"))
         else:
             shutil.copy2(source, work / "src" / name)
-    command = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", work / "dist", work / "src"]
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "wheel",
+        "-q",
+        "--no-deps",
+        "--no-build-isolation",
+        "-w",
+        work / "dist",
+        work / "src",
+    ]
     built = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert built.returncode == 0, built.stderr[-4000:]
     (wheel,) = (work / "dist").glob("lerobot_policy_taxdpd-*.whl")
@@ -71,7 +82,9 @@ def test_the_wheel_finds_its_recipes_and_trains_on_one_with_lerobot_train(wheel_
     assert Path(demo_recipe.strip()).is_relative_to(wheel_site) and Path(demo_recipe.strip()).is_file()
     listed = run_installed(wheel_site, cwd, python, "-m", "lerobot_taxdpd.recipes", "list")
     assert {"taxdpd_cpu", "taxdpd_ablation", "cloth_hang_gc_dp3"} <= {line.split()[0] for line in listed.splitlines()}
-    recipe = Path(run_installed(wheel_site, cwd, python, "-m", "lerobot_taxdpd.recipes", "path", "taxdpd_ablation").strip())
+    recipe = Path(
+        run_installed(wheel_site, cwd, python, "-m", "lerobot_taxdpd.recipes", "path", "taxdpd_ablation").strip()
+    )
     assert recipe.is_relative_to(wheel_site)
 
     dataset = write_slot_dataset(tmp_path / "slots", episodes=4, object_cloud_size=32, scene_cloud_size=64)

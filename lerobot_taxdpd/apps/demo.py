@@ -19,8 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-from lerobot_taxdpd.reports.benchmarking import write_json
 from lerobot_taxdpd.apps.slot_demo import prepare_output
+from lerobot_taxdpd.reports.benchmarking import write_json
 
 SUMMARY = "summary.json"
 
@@ -30,12 +30,24 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     from lerobot_taxdpd.sim.tasks import task_names
 
     shipped = [name for name in list_goal_predictors() if name in task_names()]
-    parser = argparse.ArgumentParser(prog="taxdpd-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="+", default=shipped, choices=task_names(), help=f"default: the shipped ones ({', '.join(shipped)})")
+    parser = argparse.ArgumentParser(
+        prog="taxdpd-demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        default=shipped,
+        choices=task_names(),
+        help=f"default: the shipped ones ({', '.join(shipped)})",
+    )
     parser.add_argument("--trials", type=int, default=20, help="held-out scenes per task (default: 20)")
     parser.add_argument("--num-samples", type=int, default=10, help="goals sampled per scene, K (default: 10)")
     parser.add_argument("--figures", type=int, default=2, help="scenes drawn per task (default: 2)")
-    parser.add_argument("--from-scratch", action="store_true", help="train each task's predictor first (CPU recipe; about 25 min a task)")
+    parser.add_argument(
+        "--from-scratch",
+        action="store_true",
+        help="train each task's predictor first (CPU recipe; about 25 min a task)",
+    )
     parser.add_argument("--output", type=Path, default=Path("results/demo"))
     return parser.parse_args(argv)
 
@@ -52,16 +64,26 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
     if args.from_scratch:
         work = args.output / "train" / task_name
         pretrain(
-            task_name, work, episodes=200, steps=None, recipe=CPU_RECIPE, trials=args.trials,
-            num_samples=args.num_samples, ship=None,
+            task_name,
+            work,
+            episodes=200,
+            steps=None,
+            recipe=CPU_RECIPE,
+            trials=args.trials,
+            num_samples=args.num_samples,
+            ship=None,
         )
         path = work / f"{task_name}_eval.json"
         return json.loads(path.read_text()), path
     task = get_task(task_name)
     trials = (make_trial(task, seed, "test") for seed in range(args.trials))
     report = evaluate(
-        load_goal_predictor(task_name), trials, args.num_samples, figures_dir=args.output / "figures",
-        num_figures=args.figures, total=args.trials,
+        load_goal_predictor(task_name),
+        trials,
+        args.num_samples,
+        figures_dir=args.output / "figures",
+        num_figures=args.figures,
+        total=args.trials,
     )
     report["predictor"] = f"shipped:{task_name}"
     return report, write_json(args.output / f"{task_name}_eval.json", report)

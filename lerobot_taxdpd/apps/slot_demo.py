@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
 from lerobot_taxdpd.recipes import run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
-from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
 
 MARKER = "metrics.json"
 
@@ -28,7 +28,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="taxdpd-demo --synthetic", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--output", type=Path, default=Path("results/demo_slots"), help="folder for data, checkpoint and report")
+    parser.add_argument(
+        "--output", type=Path, default=Path("results/demo_slots"), help="folder for data, checkpoint and report"
+    )
     parser.add_argument("--episodes", type=int, default=128, help="training demos (2 point samplings each)")
     parser.add_argument("--steps", type=int, default=800, help="lerobot-train steps")
     parser.add_argument("--batch-size", type=int, default=16)
@@ -93,18 +95,28 @@ def figures(policy, args: argparse.Namespace) -> list[str]:
     for index in range(2):
         scene = make_slot_scene(rng, args.object_cloud_size, args.scene_cloud_size, args.yaw_range)
         obj, points = torch.from_numpy(scene.object_points)[None], torch.from_numpy(scene.scene_points)[None]
-        goals = policy.sample_goals(obj, points, args.samples, generator=torch.Generator().manual_seed(index))[0].numpy()
+        goals = policy.sample_goals(obj, points, args.samples, generator=torch.Generator().manual_seed(index))[
+            0
+        ].numpy()
         weights, means = (x[0].numpy() for x in policy.placement_distribution(obj, points))
         paths.append(
             plot_goal_samples(
-                args.output / f"goals_{index}.png", scene.scene_points, scene.object_points, goals,
-                valid_goals=list(scene.valid_goals), title=f"held-out scene {index}: {args.samples} sampled goals",
+                args.output / f"goals_{index}.png",
+                scene.scene_points,
+                scene.object_points,
+                goals,
+                valid_goals=list(scene.valid_goals),
+                title=f"held-out scene {index}: {args.samples} sampled goals",
             )
         )
         paths.append(
             plot_weight_map(
-                args.output / f"gmm_{index}.png", scene.scene_points, weights, means,
-                goal_centroids=scene.valid_goals.mean(1), title=f"held-out scene {index}: Dense GMM weights",
+                args.output / f"gmm_{index}.png",
+                scene.scene_points,
+                weights,
+                means,
+                goal_centroids=scene.valid_goals.mean(1),
+                title=f"held-out scene {index}: Dense GMM weights",
             )
         )
     return [str(p) for p in paths]
@@ -117,14 +129,24 @@ def main(argv: list[str] | None = None) -> int:
     prepare_output(args.output)
     print(f"[1/4] writing {args.episodes} synthetic two-slot demos", flush=True)
     dataset = write_slot_dataset(
-        args.output / "data", episodes=args.episodes, object_cloud_size=args.object_cloud_size,
-        scene_cloud_size=args.scene_cloud_size, yaw_range=args.yaw_range, seed=0,
+        args.output / "data",
+        episodes=args.episodes,
+        object_cloud_size=args.object_cloud_size,
+        scene_cloud_size=args.scene_cloud_size,
+        yaw_range=args.yaw_range,
+        seed=0,
     )
     print(f"[2/4] training with lerobot-train for {args.steps} steps", flush=True)
     checkpoint, command, train_seconds = train(args, dataset)
     policy = TaxDPDPolicy.from_pretrained(checkpoint)
     print(f"[3/4] sampling {args.samples} goals on {args.scenes} held-out scenes", flush=True)
-    task = dict(num_samples=args.samples, num_object_points=args.object_cloud_size, num_scene_points=args.scene_cloud_size, yaw_range=args.yaw_range, num_scenes=args.scenes)
+    task = dict(
+        num_samples=args.samples,
+        num_object_points=args.object_cloud_size,
+        num_scene_points=args.scene_cloud_size,
+        yaw_range=args.yaw_range,
+        num_scenes=args.scenes,
+    )
     started = time.perf_counter()
     metrics = evaluate_slot_predictor(policy, **task, generator=torch.Generator().manual_seed(0))
     sampling_seconds = time.perf_counter() - started

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.goal_predictors import has_placement_distribution
 from lerobot_taxdpd.data.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
+from lerobot_taxdpd.goal_predictors import has_placement_distribution
 
 TASK = "put the keyed box into one of the two keyed slots, handle towards the post"
 

@@ -1,9 +1,9 @@
 """One writer for every dataset the project produces: converters, simulated demos and cloth rollouts.
 
 It writes a LeRobot v3.0 dataset into a hidden partial folder beside the output and moves it into place
-only once it is complete, with a dataset card and the dataset's scale statistics (`scaling.SCALE_FILE`); an error or an interrupt leaves any earlier dataset at the
-output path untouched. Episodes are validated whole before any frame is buffered, so a bad demo can be
-skipped without leaving a half-filled episode behind.
+only once it is complete, with a dataset card and the dataset's scale statistics (`scaling.SCALE_FILE`);
+an error or an interrupt leaves any earlier dataset at the output path untouched. Episodes are validated
+whole before any frame is buffered, so a bad demo can be skipped without leaving a half-filled episode behind.
 """
 
 from __future__ import annotations

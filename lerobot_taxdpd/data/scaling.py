@@ -52,7 +52,9 @@ def write_scale_stats(dataset_root: str | Path, object_radii: Sequence[float]) -
     radius = float(torch.tensor(list(object_radii), dtype=torch.float64).median())
     path = Path(dataset_root) / SCALE_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"field": OBJECT_KEY, "median_object_radius": radius, "frames": len(object_radii)}, indent=2))
+    path.write_text(
+        json.dumps({"field": OBJECT_KEY, "median_object_radius": radius, "frames": len(object_radii)}, indent=2)
+    )
     return path
 
 
@@ -61,7 +63,9 @@ def median_object_radius(dataset_root: str | Path) -> float:
     path = Path(dataset_root) / SCALE_FILE
     if path.is_file():
         return float(json.loads(path.read_text())["median_object_radius"])
-    logger.info("%s: no %s (a dataset not written by lerobot_taxdpd); scanning its object clouds", dataset_root, SCALE_FILE)
+    logger.info(
+        "%s: no %s (a dataset not written by lerobot_taxdpd); scanning its object clouds", dataset_root, SCALE_FILE
+    )
     clouds = torch.from_numpy(read_object_clouds(dataset_root)).double()
     return float(object_radius(clouds).median())
 

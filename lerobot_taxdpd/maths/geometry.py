@@ -320,8 +320,9 @@ def estimate_rigid_transform(
     keys_device = generator.device if generator is not None else s.device
     keys = torch.rand(b, num_hypotheses, n, generator=generator, device=keys_device).to(s.device)
     triples = keys.topk(3, dim=-1).indices  # (b, H, 3)
-    src_triples = torch.gather(s64.unsqueeze(1).expand(-1, num_hypotheses, -1, -1), 2, triples.unsqueeze(-1).expand(-1, -1, -1, 3))
-    dst_triples = torch.gather(d64.unsqueeze(1).expand(-1, num_hypotheses, -1, -1), 2, triples.unsqueeze(-1).expand(-1, -1, -1, 3))
+    picks = triples.unsqueeze(-1).expand(-1, -1, -1, 3)
+    src_triples = torch.gather(s64.unsqueeze(1).expand(-1, num_hypotheses, -1, -1), 2, picks)
+    dst_triples = torch.gather(d64.unsqueeze(1).expand(-1, num_hypotheses, -1, -1), 2, picks)
     hypotheses = _kabsch(src_triples, dst_triples)  # (b, H, 4, 4)
     moved = s64.unsqueeze(1) @ hypotheses[..., :3, :3].transpose(-1, -2) + hypotheses[..., None, :3, 3]
     residual = (moved - d64.unsqueeze(1)).norm(dim=-1)  # (b, H, N)

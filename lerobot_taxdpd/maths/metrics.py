@@ -134,7 +134,9 @@ def paired_difference(a, b, resamples: int = 10_000, seed: int = 0) -> tuple[flo
     apart even where their own intervals overlap."""
     a, b = _np(a).astype(np.float64), _np(b).astype(np.float64)
     if a.shape != b.shape or a.ndim != 1 or a.size == 0:
-        raise ValueError(f"paired_difference: needs two 1-D arrays of the same non-zero length, got {a.shape} and {b.shape}")
+        raise ValueError(
+            f"paired_difference: needs two 1-D arrays of the same non-zero length, got {a.shape} and {b.shape}"
+        )
     difference = a - b
     rng = np.random.default_rng(seed)
     means = difference[rng.integers(0, difference.size, (resamples, difference.size))].mean(1)

@@ -49,7 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--task", required=True, choices=tasks)
     source = evaluate.add_mutually_exclusive_group(required=True)
     source.add_argument(
-        "--policy.path", dest="policy_path", help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id"
+        "--policy.path",
+        dest="policy_path",
+        help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id",
     )
     source.add_argument(
         "--predictor",
@@ -68,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain = verbs.add_parser(
         "pretrain",
         help="demos, lerobot-train, held-out eval, and a packaged checkpoint",
-        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) and --seed=<n> are passed on to lerobot-train.",
+        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) and --seed=<n> are passed on "
+        "to lerobot-train.",
     )
     pretrain.add_argument("--task", required=True, choices=task_names())
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
@@ -81,7 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain.add_argument("--output", type=Path, default=None, help="work folder (default: results/pretrain/<task>)")
     pretrain.add_argument("--ship", type=Path, default=None, help="save the evaluated checkpoint as <SHIP>/<task>")
     pretrain.add_argument(
-        "--dataset", type=Path, default=None, help="demonstrations folder, generated if missing (default: <output>/data)"
+        "--dataset",
+        type=Path,
+        default=None,
+        help="demonstrations folder, generated if missing (default: <output>/data)",
     )
     return parser
 
@@ -124,9 +130,9 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.reports.benchmarking import write_json
     from lerobot_taxdpd.sim.harness import evaluate
-    from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.sim.predictors import OraclePredictor, load_predictor
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
@@ -179,7 +185,9 @@ def main(argv: list[str] | None = None) -> int:
         return cloth_main(argv)
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
-    overrides = [arg for arg in unknown if args.verb == "pretrain" and arg.startswith(("--policy.", "--seed=")) and "=" in arg]
+    overrides = [
+        arg for arg in unknown if args.verb == "pretrain" and arg.startswith(("--policy.", "--seed=")) and "=" in arg
+    ]
     if len(overrides) < len(unknown):
         parser.error(f"unrecognized arguments: {' '.join(arg for arg in unknown if arg not in overrides)}")
     try:

@@ -31,6 +31,7 @@ from lerobot_taxdpd.reports.plots import plot_goal_samples, plot_weight_map
 from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
 from lerobot_taxdpd.sim.trials import Trial, execute
 
+
 def _sample(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
     """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked."""
     object_points = torch.from_numpy(trial.object_points)[None]
@@ -79,7 +80,8 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
         record["gripper_rotation_error_deg"] = float(rotation)
     if trial.task.multi_modal:
         bounds = np.cumsum([0, *[len(g) for g in goals]])
-        per_mode = np.stack([rmse[:, a:b].min(1) for a, b in zip(bounds[:-1], bounds[1:])], 1)  # (K, modes)
+        spans = zip(bounds[:-1], bounds[1:], strict=True)
+        per_mode = np.stack([rmse[:, a:b].min(1) for a, b in spans], 1)  # (K, modes)
         quality = coverage_precision_from_rmse(per_mode, trial.task.coverage_threshold)
         record.update(coverage=quality["coverage"], precision=quality["precision"], num_modes=len(goals))
     return record

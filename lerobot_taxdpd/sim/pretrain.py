@@ -4,10 +4,10 @@
     python -m lerobot_taxdpd.sim pretrain --task mug_easyrack --ship lerobot_taxdpd/pretrained
 
 Steps: scripted demonstrations of the training geometry (`generate`), `lerobot-train` with the shipped CPU
-recipe `taxdpd_cpu` (or any recipe name or config file given), the evaluation harness on held-out geometry, then the checkpoint with its
-measured metrics (task, training command and budget, held-out success and errors) saved as a shipped
-predictor when `--ship` names a folder. Each step that already finished is reused on a rerun; a checkpoint
-is reused only by the training command that made it.
+recipe `taxdpd_cpu` (or any recipe name or config file given), the evaluation harness on held-out geometry,
+then the checkpoint with its measured metrics (task, training command and budget, held-out success and
+errors) saved as a shipped predictor when `--ship` names a folder. Each step that already finished is
+reused on a rerun; a checkpoint is reused only by the training command that made it.
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ def pretrain(
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
     `recipe` is a shipped recipe name or a config file; `overrides` are extra lerobot-train flags
-    (`--policy.<field>=<value>`, `--seed=<n>`). `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
-    demonstrations; it is generated only if it does not exist yet.
+    (`--policy.<field>=<value>`, `--seed=<n>`). `dataset` (default `<output>/data`) lets several runs, e.g.
+    the ablations of one task, share one set of demonstrations; it is generated only if it does not exist yet.
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
@@ -78,7 +78,9 @@ def pretrain(
     generate_command = f"python -m lerobot_taxdpd.sim generate --task {task.name} --episodes {episodes} --split train"
     if not (dataset / "meta" / "info.json").is_file():
         print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
-        generate_dataset(task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command)
+        generate_dataset(
+            task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command
+        )
     flags = [*([f"--steps={steps}"] if steps else []), *overrides]
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
@@ -116,7 +118,11 @@ def pretrain(
         "train_seconds": train_seconds,
         "evaluation": f"{trials} held-out trials (test geometry, seeds 0..{trials - 1}), K = {num_samples}",
         "license": "apache-2.0",
-        **{key: value for key, value in report.items() if key in _REPORTED or key.startswith(("coverage@", "precision@"))},
+        **{
+            key: value
+            for key, value in report.items()
+            if key in _REPORTED or key.startswith(("coverage@", "precision@"))
+        },
     }
     policy.metrics = metrics
     print(f"[4/4] {task.name}: success {report['success']['success_rate']:.1%} on held-out geometry", flush=True)

@@ -19,8 +19,8 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
-from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 
 
 # --------------------------------------------------------------------------------------------- encoders

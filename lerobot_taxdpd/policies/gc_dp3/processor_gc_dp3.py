@@ -23,9 +23,9 @@ from lerobot.processor import (
 from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 
+from lerobot_taxdpd.data.schema import POINT_CLOUD_PREFIX
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.point_cloud_steps import AddPointCloudBatchDimensionStep
-from lerobot_taxdpd.data.schema import POINT_CLOUD_PREFIX
 
 
 def make_gc_dp3_pre_post_processors(

@@ -15,7 +15,15 @@ _SWITCHES = (
     "use_deformation_embedding",
     "use_rotation_noise",
 )
-_SHAPE = ("hidden_dim", "num_blocks", "num_heads", "num_object_points", "num_scene_points", "point_scale", "object_scale")
+_SHAPE = (
+    "hidden_dim",
+    "num_blocks",
+    "num_heads",
+    "num_object_points",
+    "num_scene_points",
+    "point_scale",
+    "object_scale",
+)
 _SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps")
 
 
@@ -37,7 +45,9 @@ def _metric_rows(metrics: dict, prefix: str = "") -> list[str]:
 
 def render_model_card(card_yaml: str, config, metrics: dict, dataset_repo_id: str | None) -> str:
     """Markdown with front matter: what the model is, how to load it, its configuration and its metrics."""
-    inputs = {key: tuple(config.input_features[key].shape) for key in (OBJECT_KEY, SCENE_KEY) if key in config.input_features}
+    inputs = {
+        key: tuple(config.input_features[key].shape) for key in (OBJECT_KEY, SCENE_KEY) if key in config.input_features
+    }
     lines = [
         "---",
         card_yaml.strip(),
@@ -55,7 +65,7 @@ def render_model_card(card_yaml: str, config, metrics: dict, dataset_repo_id: st
         "",
         "```python",
         "from lerobot_taxdpd import TaxDPDPolicy",
-        "policy = TaxDPDPolicy.from_pretrained(\"<this repo id or folder>\")",
+        'policy = TaxDPDPolicy.from_pretrained("<this repo id or folder>")',
         "goals = policy.sample_goals(object_points, scene_points, num_samples=10)  # (B, 10, N_O, 3), metres",
         "poses = policy.predict_poses(object_points, scene_points, num_samples=10)  # (B, 10, 4, 4)",
         "```",
@@ -72,5 +82,15 @@ def render_model_card(card_yaml: str, config, metrics: dict, dataset_repo_id: st
         "input_features": {k: list(v.shape) for k, v in config.input_features.items()},
         "output_features": {k: list(v.shape) for k, v in config.output_features.items()},
     }
-    lines += ["", "<details><summary>Features</summary>", "", "```json", json.dumps(features, indent=2), "```", "", "</details>", ""]
+    lines += [
+        "",
+        "<details><summary>Features</summary>",
+        "",
+        "```json",
+        json.dumps(features, indent=2),
+        "```",
+        "",
+        "</details>",
+        "",
+    ]
     return "\n".join(lines)

@@ -17,11 +17,12 @@ import numpy as np
 import torch
 from huggingface_hub import ModelCard, ModelCardData, hf_hub_download
 from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
+from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
-from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot_taxdpd.policies.taxdpd.augmentation import ball_cut, downsample_indices, plane_cut, random_start_pose, random_z_rotation
-from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
+from lerobot_taxdpd.data.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
 from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
     farthest_point_sample,
@@ -29,13 +30,18 @@ from lerobot_taxdpd.maths.geometry import (
     lift_point_motion,
     nearest_indices,
 )
+from lerobot_taxdpd.policies.taxdpd.augmentation import (
+    ball_cut,
+    downsample_indices,
+    plane_cut,
+    random_start_pose,
+    random_z_rotation,
+)
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
 from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
 from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
-from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
-from lerobot_taxdpd.data.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
 
 logger = logging.getLogger(__name__)
 

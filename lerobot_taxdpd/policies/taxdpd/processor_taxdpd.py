@@ -23,13 +23,13 @@ from lerobot.processor import (
 from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 
-from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.data.schema import OBJECT_KEY
 from lerobot_taxdpd.policies.point_cloud_steps import (
     AddPointCloudBatchDimensionStep,
     FlattenGoalCloudStep,
     UnpackEnvironmentPointCloudsStep,
 )
-from lerobot_taxdpd.data.schema import OBJECT_KEY
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
 
 
 def make_taxdpd_pre_post_processors(

@@ -28,8 +28,12 @@ def build_parser() -> argparse.ArgumentParser:
     generate = verbs.add_parser("generate", help="write expert demonstrations as LeRobot datasets")
     _common(generate, default_split="train")
     generate.add_argument("--episodes", type=int, required=True, help="scene seeds tried (failed demos are skipped)")
-    generate.add_argument("--repo-id", required=True, help="dataset repo id, e.g. me/cloth_hang (suffixed _goal/_policy for both)")
-    generate.add_argument("--root", type=Path, required=True, help="output folder (for both: ROOT/goal and ROOT/policy)")
+    generate.add_argument(
+        "--repo-id", required=True, help="dataset repo id, e.g. me/cloth_hang (suffixed _goal/_policy for both)"
+    )
+    generate.add_argument(
+        "--root", type=Path, required=True, help="output folder (for both: ROOT/goal and ROOT/policy)"
+    )
     generate.add_argument("--dataset", choices=DATASET_KINDS, default="both", help="which dataset(s) to write")
     generate.add_argument("--views", type=int, default=4, help="point samplings (frames) per goal-prediction episode")
     generate.add_argument(
@@ -44,14 +48,22 @@ def build_parser() -> argparse.ArgumentParser:
     _common(evaluate, default_split="test")
     evaluate.add_argument("--trials", type=int, default=100)
     evaluate.add_argument("--policy.path", dest="policy_path", help="gc_dp3 checkpoint (pretrained_model folder)")
-    evaluate.add_argument("--goal-policy.path", dest="goal_policy_path", help="taxdpd goal predictor: shipped name, checkpoint folder or Hub id")
+    evaluate.add_argument(
+        "--goal-policy.path",
+        dest="goal_policy_path",
+        help="taxdpd goal predictor: shipped name, checkpoint folder or Hub id",
+    )
     evaluate.add_argument("--ground-truth-goals", action="store_true", help="also run gc_dp3 on a ground-truth goal")
-    evaluate.add_argument("--num-samples", dest="num_goal_samples", type=int, default=10, help="K goals sampled per scene")
+    evaluate.add_argument(
+        "--num-samples", dest="num_goal_samples", type=int, default=10, help="K goals sampled per scene"
+    )
     evaluate.add_argument("--goal-threshold", type=float, default=0.5, help="RMSE (m) for coverage@K / precision@K")
     evaluate.add_argument("--plots", type=int, default=5, help="PNGs for the first N trials")
     evaluate.add_argument("--output", type=Path, default=Path("outputs/eval/cloth_hang"))
     evaluate.add_argument("--device", default="cpu")
-    evaluate.add_argument("--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang")
+    evaluate.add_argument(
+        "--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang"
+    )
     return parser
 
 

@@ -157,7 +157,8 @@ class ClothHangEnv(gym.Env):
     def release(self) -> dict[str, Any]:
         """Let go of the cloth, let it settle and check success (DEDO: 500 steps after release)."""
         vertices = self.cloth_vertices()
-        pre = checks.pre_release_matrix(vertices, self.mesh.hole_loops, self.scene.hangers, self.settings.success_radius)
+        radius = self.settings.success_radius
+        pre = checks.pre_release_matrix(vertices, self.mesh.hole_loops, self.scene.hangers, radius)
         for anchor in self._anchors:
             p.removeConstraint(anchor, physicsClientId=self._client)
         self._anchors = []
