@@ -66,7 +66,7 @@ def median_object_radius(dataset_root: str | Path) -> float:
     logger.info(
         "%s: no %s (a dataset not written by lerobot_taxdpd); scanning its object clouds", dataset_root, SCALE_FILE
     )
-    clouds = torch.from_numpy(read_object_clouds(dataset_root)).double()
+    clouds = torch.tensor(read_object_clouds(dataset_root), dtype=torch.float64)
     return float(object_radius(clouds).median())
 
 
