@@ -7,6 +7,7 @@ import json
 
 import pytest
 import torch
+from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import install_in_hub_cache, run_cli
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, list_goal_predictors, load_goal_predictor
@@ -72,3 +73,7 @@ def test_every_shipped_predictor_loads_by_name_and_states_its_measured_metrics(n
     generator = torch.Generator().manual_seed(0)
     goals = policy.sample_goals(torch.rand(1, n_o, 3) * 0.05, torch.rand(1, n_s, 3) * 0.3, 2, generator=generator)
     assert goals.shape == (1, 2, n_o, 3) and bool(torch.isfinite(goals).all())
+    # its saved processors name their steps by registry name, which the package registers wherever it lives
+    preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(folder))
+    assert "UnpackEnvironmentPointCloudsStep" in [type(step).__name__ for step in preprocessor.steps]
+    assert type(postprocessor.steps[-1]).__name__ == "FlattenGoalCloudStep"
