@@ -95,9 +95,8 @@ def figures(policy, args: argparse.Namespace) -> list[str]:
     for index in range(2):
         scene = make_slot_scene(rng, args.object_cloud_size, args.scene_cloud_size, args.yaw_range)
         obj, points = torch.from_numpy(scene.object_points)[None], torch.from_numpy(scene.scene_points)[None]
-        goals = policy.sample_goals(obj, points, args.samples, generator=torch.Generator().manual_seed(index))[
-            0
-        ].numpy()
+        generator = torch.Generator().manual_seed(index)
+        goals = policy.sample_goals(obj, points, args.samples, generator=generator)[0].numpy()
         weights, means = (x[0].numpy() for x in policy.placement_distribution(obj, points))
         paths.append(
             plot_goal_samples(
