@@ -1,7 +1,7 @@
 """The ablation table: every switch of the paper's ablation study, trained and evaluated under one budget.
 
 Each (task, variant) is one `python -m lerobot_taxdpd.sim pretrain` run with the same demonstrations (shared
-per task), the same recipe (`configs/taxdpd_ablation.json` by default: hidden 32, 2 DiT blocks, 64/128
+per task), the same recipe (the shipped `taxdpd_ablation` by default: hidden 32, 2 DiT blocks, 64/128
 points seen by the network, batch 16, 600 steps; about 6 minutes a run on one core of a 2-core CPU), and
 the same 100 held-out trials with K = 10 goals. Finished runs are reused, so an interrupted table resumes
 where it stopped.
@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.metrics import paired_difference
+from lerobot_taxdpd.maths.metrics import paired_difference
+from lerobot_taxdpd.recipes import run
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import task_names
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Variant -> (the paper's ablation row, lerobot-train flags); the flags are explained in docs/taxdpd.md.
 VARIANTS: dict[str, tuple[str, list[str]]] = {
     "full": ("TAX-DPD", []),
@@ -69,22 +69,15 @@ PAPER = {
 DEFAULT_TASKS = ["mug_medrack", "book_shelf", "insert_waterproof"]
 
 
-def run_command(task: str, variant: str, args: argparse.Namespace, python: str = sys.executable) -> list[str]:
+def run_command(task: str, variant: str, args: argparse.Namespace) -> list[str]:
+    """The `sim pretrain` command of one cell, as recorded in the table and run by `recipes.run`."""
     work = args.output / task
     return [
-        python, "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
+        "python", "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
         f"--episodes={args.episodes}", f"--trials={args.trials}", f"--num-samples={args.num_samples}",
         f"--dataset={work / 'data'}", f"--output={work / variant}",
         *([f"--steps={args.steps}"] if args.steps else []), *VARIANTS[variant][1],
     ]
-
-
-def run_logged(command: list[str], log: Path, threads: int) -> None:
-    """One child process with its own thread budget; its output goes to `log` (the table reads metrics.json)."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
-    with log.open("w") as stream:
-        subprocess.run(command, stdout=stream, stderr=subprocess.STDOUT, env=env, check=True, cwd=ROOT)
 
 
 def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | None:
@@ -93,12 +86,12 @@ def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | No
     if (data / "meta" / "info.json").is_file():
         return None
     command = [
-        sys.executable, "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
+        "python", "-m", "lerobot_taxdpd.sim", "generate", f"--task={task}", f"--episodes={args.episodes}",
         "--split=train", f"--repo-id=local/{task}", f"--root={data}",
     ]
     log = args.output / task / "generate.log"
     try:
-        run_logged(command, log, threads)
+        run(command, log=log, threads=threads)
     except subprocess.CalledProcessError as error:
         return f"{task}: generating demonstrations failed with exit status {error.returncode}, see {log}"
     return None
@@ -112,7 +105,7 @@ def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, thread
     started = time.perf_counter()
     log = folder.with_suffix(".log")
     try:
-        run_logged(run_command(task, variant, args), log, threads)
+        run(run_command(task, variant, args), log=log, threads=threads)
     except subprocess.CalledProcessError as error:
         return f"{task} / {variant}: exit status {error.returncode}, see {log}"
     print(f"{task} / {variant}: {(time.perf_counter() - started) / 60:.1f} min", flush=True)
@@ -122,7 +115,9 @@ def train_and_evaluate(task: str, variant: str, args: argparse.Namespace, thread
 def per_trial_wta_rmse(task: str, variant: str, args: argparse.Namespace) -> np.ndarray:
     """Winner-take-all RMSE (mm) of every held-out trial, in seed order (every variant sees the same seeds)."""
     report = json.loads((args.output / task / variant / f"{task}_eval.json").read_text())
-    return np.array([trial["winner_take_all_rmse_mm"] for trial in sorted(report["per_trial"], key=lambda t: t["seed"])])
+    return np.array(
+        [trial["winner_take_all_rmse_mm"] for trial in sorted(report["per_trial"], key=lambda t: t["seed"])]
+    )
 
 
 def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[tuple[str, str]]) -> dict:
@@ -131,7 +126,9 @@ def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[t
     coverage = next((key for key in metrics if key.startswith("coverage@")), None)
     versus_full = None
     if variant != "full" and (task, "full") in finished:
-        mean, low, high = paired_difference(per_trial_wta_rmse(task, variant, args), per_trial_wta_rmse(task, "full", args))
+        mean, low, high = paired_difference(
+            per_trial_wta_rmse(task, variant, args), per_trial_wta_rmse(task, "full", args)
+        )
         versus_full = {"mean_mm": mean, "ci95_mm": [low, high]}
     return {
         "task": task,
@@ -148,7 +145,7 @@ def table_row(task: str, variant: str, args: argparse.Namespace, finished: set[t
         "coverage_threshold_mm": metrics.get("coverage_threshold_mm"),
         "paper_success_rate": PAPER.get(task, {}).get(variant),
         "train_seconds": metrics["train_seconds"],
-        "command": " ".join(str(part) for part in run_command(task, variant, args, python="python")),
+        "command": " ".join(str(part) for part in run_command(task, variant, args)),
     }
 
 
@@ -163,9 +160,12 @@ def markdown(rows: list[dict]) -> str:
         paper = f"{row['paper_success_rate']:.2f}" if row["paper_success_rate"] is not None else "-"
         cover = "-" if row["coverage"] is None else f"{row['coverage']:.2f} / {row['precision']:.2f}"
         versus = row["winner_take_all_rmse_vs_full"]
-        versus = "-" if versus is None else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
+        versus = (
+            "-" if versus is None else "{:+.1f} mm ({:+.1f} to {:+.1f})".format(versus["mean_mm"], *versus["ci95_mm"])
+        )
         lines.append(
-            f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | {row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
+            f"| {row['task']} | {row['paper_row']} (`{row['variant']}`) | "
+            f"{row['success_rate']:.0%} ({low:.0%}-{high:.0%}) | {paper} | "
             f"{row['translation_error_mm']:.1f} mm / {row['rotation_error_deg']:.1f} deg | "
             f"{row['winner_take_all_rmse_mm']:.1f} mm | {versus} | {cover} |"
         )
@@ -204,14 +204,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="+", default=DEFAULT_TASKS, choices=task_names())
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--config", type=Path, default=Path("configs/taxdpd_ablation.json"))
+    parser.add_argument(
+        "--config", default="taxdpd_ablation", help="a shipped recipe name or a config file (default: taxdpd_ablation)"
+    )
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
     parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
     parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")
     parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
     parser.add_argument("--jobs", type=int, default=1, help="runs at the same time (default: 1)")
     parser.add_argument("--output", type=Path, default=Path("results/ablations"))
-    parser.add_argument("--report-only", action="store_true", help="write the table from the finished runs, train nothing")
+    parser.add_argument(
+        "--report-only", action="store_true", help="write the table from the finished runs, train nothing"
+    )
     return parser.parse_args(argv)
 
 
@@ -224,9 +228,13 @@ def main(argv: list[str] | None = None) -> int:
     failures = []
     if not args.report_only:
         with ThreadPoolExecutor(args.jobs) as pool:  # the work itself happens in child processes
-            failures = [error for error in pool.map(lambda task: generate_data(task, args, threads), args.tasks) if error]
+            failures = [
+                error for error in pool.map(lambda task: generate_data(task, args, threads), args.tasks) if error
+            ]
             ready = [job for job in jobs if not any(error.startswith(f"{job[0]}:") for error in failures)]
-            failures += [error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), ready) if error]
+            failures += [
+                error for error in pool.map(lambda job: train_and_evaluate(*job, args, threads), ready) if error
+            ]
     finished = {job for job in jobs if (args.output / job[0] / job[1] / "metrics.json").is_file()}
     rows = [
         table_row(task, variant, args, finished)
@@ -237,7 +245,11 @@ def main(argv: list[str] | None = None) -> int:
     machine = machine_info()
     machine["torch_threads"] = threads
     payload = {
-        "machine": machine, "config": str(args.config), "jobs": args.jobs, "rows": rows, "failures": failures,
+        "machine": machine,
+        "config": str(args.config),
+        "jobs": args.jobs,
+        "rows": rows,
+        "failures": failures,
         "wall_seconds": time.perf_counter() - started,
     }
     write_json(args.output.with_suffix(".json"), payload)

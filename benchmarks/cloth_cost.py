@@ -22,12 +22,12 @@ from pathlib import Path
 
 import torch
 
-from lerobot_taxdpd.metrics import success_summary
+from lerobot_taxdpd.maths.metrics import success_summary
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
-from lerobot_taxdpd.sim.harness import machine_info, write_report
 
 
 def expert_costs(split: str, seeds: range) -> dict:
@@ -73,12 +73,17 @@ def policy_latency(down_dims: tuple[int, ...], encoder: tuple[int, ...], points_
     from lerobot.configs.types import FeatureType, PolicyFeature
 
     from lerobot_taxdpd import GcDp3Config
-    from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-    from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+    from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+    from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
     cloud = PolicyFeature(FeatureType.STATE, (512, 3))
     config = GcDp3Config(
-        input_features={OBJECT_KEY: cloud, SCENE_KEY: cloud, GOAL_CLOUD_KEY: cloud, STATE_KEY: PolicyFeature(FeatureType.STATE, (12,))},
+        input_features={
+            OBJECT_KEY: cloud,
+            SCENE_KEY: cloud,
+            GOAL_CLOUD_KEY: cloud,
+            STATE_KEY: PolicyFeature(FeatureType.STATE, (12,)),
+        },
         output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (6,))},
         down_dims=down_dims,
         point_encoder_dims=encoder,
@@ -126,16 +131,20 @@ def main() -> int:
             policy_latency((64, 128, 256), (32, 64, 128), 128),
             policy_latency((512, 1024, 2048), (64, 128, 256), None),
         ]
-    path = write_report(report, args.output)
+    path = write_json(args.output, report)
     for split, figures in report["expert"].items():
         print(
-            f"expert {split}: success {figures['success_rate']:.2f} [{figures['ci95_low']:.2f}, {figures['ci95_high']:.2f}]"
-            f" over {figures['trials']}; {figures['seconds_per_episode']:.1f} s/episode;"
+            f"expert {split}: success {figures['success_rate']:.2f}"
+            f" [{figures['ci95_low']:.2f}, {figures['ci95_high']:.2f}] over {figures['trials']};"
+            f" {figures['seconds_per_episode']:.1f} s/episode;"
             f" {figures['ms_per_physics_step_hanging_free']:.2f} ms/step free,"
             f" {figures['ms_per_physics_step_in_contact']:.2f} ms/step in contact"
         )
     for figures in report.get("gc_dp3_inference", []):
-        print(f"gc_dp3 {figures['down_dims']} ({figures['parameters_millions']:.1f} M): {figures['ms_per_chunk']:.0f} ms/chunk")
+        print(
+            f"gc_dp3 {figures['down_dims']} ({figures['parameters_millions']:.1f} M): "
+            f"{figures['ms_per_chunk']:.0f} ms/chunk"
+        )
     print(f"threads: {torch.get_num_threads()}; written to {path}")
     return 0
 

@@ -2,7 +2,7 @@
 
 Converting is dominated by downsampling raw clouds of 30-60k points, so this times the FPS implementations
 one could use (fpsample's bucketed KD-line FPS, which the converters use; fpsample's plain FPS; open3d; the
-batched torch FPS of `lerobot_taxdpd.geometry`) and then whole conversions of RPDiff-size demos (child 30k,
+batched torch FPS of `lerobot_taxdpd.maths.geometry`) and then whole conversions of RPDiff-size demos (child 30k,
 parent 60k points, 512/1024 sampled, 2 samplings per demo). Demo files are written with the test suite's
 RPDiff fixture writer. Prints the machine, thread count and configuration beside the medians and writes
 everything as JSON.
@@ -14,9 +14,6 @@ everything as JSON.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -26,25 +23,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def _machine(threads: int) -> dict:
-    import fpsample
-    import open3d
-    import torch
-
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "load_average_1min": os.getloadavg()[0],  # other work on the machine slows every figure below
-        "torch_threads": threads,
-        "python": sys.version.split()[0],
-        "numpy": np.__version__,
-        "torch": torch.__version__,
-        "open3d": open3d.__version__,
-        "fpsample": getattr(fpsample, "__version__", "unknown"),
-    }
 
 
 def _median_ms(run, repeats: int) -> tuple[float, list[float]]:
@@ -62,7 +40,7 @@ def fps_options(points: np.ndarray, num_samples: int, repeats: int) -> list[dict
     import open3d as o3d
     import torch
 
-    from lerobot_taxdpd.geometry import farthest_point_indices, farthest_point_sample
+    from lerobot_taxdpd.maths.geometry import farthest_point_indices, farthest_point_sample
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     tensor = torch.from_numpy(points)[None]
@@ -88,7 +66,6 @@ def conversion_rate(num_demos: int, repeats: int, workdir: Path) -> dict:
     """Median demos/s of `convert_rpdiff` on RPDiff-size demos (imports and file writing of inputs excluded)."""
     sys.path.insert(0, str(REPO / "tests"))
     from convert_fixtures import rpdiff_demo, save_rpdiff_demo
-
     from datasets_conv.pipeline import ConversionOptions
     from datasets_conv.rpdiff import convert_rpdiff
 
@@ -119,11 +96,15 @@ def main() -> None:
     parser.add_argument("--output", type=Path, default=REPO / "results" / "convert_speed.json")
     args = parser.parse_args()
 
+    import fpsample  # noqa: F401  (loaded first, so the machine record names its version)
+    import open3d  # noqa: F401
     import torch
+
+    from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    machine = _machine(torch.get_num_threads())
+    machine = machine_info()
     rng = np.random.default_rng(0)
     clouds = {"60k -> 1024 (RPDiff parent)": (60_000, 1024), "30k -> 512 (RPDiff child)": (30_000, 512)}
     fps = {
@@ -135,7 +116,7 @@ def main() -> None:
     report = {"machine": machine, "repeats": args.repeats, "fps": fps, "rpdiff_conversion": conversion}
 
     print(
-        f"machine: {machine['processor']}, {machine['cpu_count']} CPUs, torch threads {machine['torch_threads']}, "
+        f"machine: {machine['cpu']}, {machine['cpu_count']} CPUs, torch threads {machine['torch_threads']}, "
         f"load average {machine['load_average_1min']:.1f} at start"
     )
     print(f"medians of {args.repeats} runs")
@@ -148,9 +129,7 @@ def main() -> None:
         f"\nRPDiff conversion, {conversion['child_points']}/{conversion['parent_points']}-point demos -> 512/1024, "
         f"2 frames each: {conversion['median_demos_per_s']:.2f} demos/s"
     )
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(report, indent=2))
-    print(f"\nwrote {args.output}")
+    print(f"\nwrote {write_json(args.output, report)}")
 
 
 if __name__ == "__main__":

@@ -23,12 +23,17 @@ import numpy as np
 import torch
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.equivariance import goal_turn_response
-from lerobot_taxdpd.metrics import rotation_error_deg
-from lerobot_taxdpd.scaling import object_radius
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor, make_slot_scene, render_slot_scene, sample_slot_layout
+from lerobot_taxdpd.apps.synthetic import (
+    evaluate_slot_predictor,
+    make_slot_scene,
+    render_slot_scene,
+    sample_slot_layout,
+)
+from lerobot_taxdpd.data.scaling import object_radius
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.maths.equivariance import goal_turn_response
+from lerobot_taxdpd.maths.metrics import rotation_error_deg
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 # The CI learning test's small model; variants override any field.
 BASE = dict(hidden_dim=32, num_blocks=1, num_heads=4, max_neighbors=32, optimizer_lr=2e-3, scheduler_warmup_steps=20)

@@ -20,15 +20,17 @@ from pathlib import Path
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, write_json
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 SAMPLERS = (("ddpm", 100), ("ddim", 100), ("ddim", 20), ("ddim", 10), ("ddim", 5), ("ddim", 3))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", type=Path, default=Path("results/demo_slots/train/checkpoints/last/pretrained_model"))
+    parser.add_argument(
+        "--checkpoint", type=Path, default=Path("results/demo_slots/train/checkpoints/last/pretrained_model")
+    )
     parser.add_argument("--scenes", type=int, default=24)
     parser.add_argument("--samples", type=int, default=10)
     parser.add_argument("--yaw-range", type=float, default=None, help="default: the demo's, from its report")
@@ -39,7 +41,9 @@ def main() -> None:
     demo_report = args.checkpoint.parents[3] / "metrics.json"
     yaw_range = args.yaw_range
     if yaw_range is None:
-        yaw_range = float(json.loads(demo_report.read_text())["arguments"]["yaw_range"]) if demo_report.exists() else math.pi
+        yaw_range = (
+            float(json.loads(demo_report.read_text())["arguments"]["yaw_range"]) if demo_report.exists() else math.pi
+        )
     shape = policy.config.input_features
     task = dict(
         num_scenes=args.scenes,
@@ -49,7 +53,10 @@ def main() -> None:
         yaw_range=yaw_range,
     )
     machine = machine_info()
-    print(f"machine: {machine['cpu']} | torch {machine['torch']} | {machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
+    print(
+        f"machine: {machine['cpu']} | torch {machine['torch']} | {machine['torch_threads']} threads | "
+        f"load {machine['load_average_1min']:.1f}"
+    )
     print(f"checkpoint: {args.checkpoint} | {args.scenes} held-out scenes x K={args.samples}")
     rows = []
     for sampler, steps in SAMPLERS:
@@ -63,11 +70,14 @@ def main() -> None:
         row["wta_rmse_vs_ddpm100"] = row["wta_rmse_mm"] / reference
         print(
             f"{row['sampler']:>4} {row['steps']:>3} steps: WTA RMSE {row['wta_rmse_mm']:.2f} mm "
-            f"({100 * (row['wta_rmse_vs_ddpm100'] - 1):+.0f}% vs DDPM-100), translation {row['translation_error_mm']:.2f} mm, "
-            f"rotation {row['rotation_error_deg']:.2f} deg, coverage@{args.samples} {row[f'coverage@{args.samples}']:.2f}, "
+            f"({100 * (row['wta_rmse_vs_ddpm100'] - 1):+.0f}% vs DDPM-100), "
+            f"translation {row['translation_error_mm']:.2f} mm, rotation {row['rotation_error_deg']:.2f} deg, "
+            f"coverage@{args.samples} {row[f'coverage@{args.samples}']:.2f}, "
             f"{row['seconds']:.1f} s"
         )
-    path = write_json(args.output, {"machine": machine, "checkpoint": str(args.checkpoint), "task": task, "results": rows})
+    path = write_json(
+        args.output, {"machine": machine, "checkpoint": str(args.checkpoint), "task": task, "results": rows}
+    )
     print(f"wrote {path}")
 
 

@@ -21,7 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from lerobot_taxdpd.sim.harness import evaluate, machine_info, write_report
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.predictors import OraclePredictor
 from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import make_trial
@@ -91,7 +92,7 @@ def main() -> int:
         "config": config,
         "tasks": results,
     }
-    print(f"wrote {write_report(payload, args.output)}")
+    print(f"wrote {write_json(args.output, payload)}")
     return 0
 
 

@@ -21,14 +21,14 @@ import sys
 import time
 from pathlib import Path
 
-from lerobot_taxdpd.sim.harness import machine_info, write_report
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import execute, make_trial
 
 
-def _timed(run) -> tuple[float, object]:
+def _timed(run, *args, **kwargs) -> tuple[float, object]:
     started = time.perf_counter()
-    result = run()
+    result = run(*args, **kwargs)
     return time.perf_counter() - started, result
 
 
@@ -36,11 +36,11 @@ def measure(task_name: str, trials: int, seed: int) -> dict:
     task = get_task(task_name)
     observe, place, episode = [], [], []
     for i in range(trials):
-        seconds, trial = _timed(lambda: make_trial(task, seed + i, "test"))
+        seconds, trial = _timed(make_trial, task, seed + i, "test")
         observe.append(seconds)
-        place.append(_timed(lambda: execute(trial, trial.goal_transform))[0])
-        episode.append(_timed(lambda: make_trial(task, seed + i, "train", num_views=2))[0])
-    per_trial = statistics.median([a + b for a, b in zip(observe, place)])
+        place.append(_timed(execute, trial, trial.goal_transform)[0])
+        episode.append(_timed(make_trial, task, seed + i, "train", num_views=2)[0])
+    per_trial = statistics.median([a + b for a, b in zip(observe, place, strict=True)])
     return {
         "trials": trials,
         "scene_and_observation_s": statistics.median(observe),
@@ -81,7 +81,7 @@ def main() -> int:
         "config": config,
         "tasks": results,
     }
-    print(f"wrote {write_report(payload, args.output)}")
+    print(f"wrote {write_json(args.output, payload)}")
     return 0
 
 

@@ -21,9 +21,9 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
-from lerobot_taxdpd.benchmarking import machine_info, timed, write_json
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.synthetic import make_slot_scene
+from lerobot_taxdpd.apps.synthetic import make_slot_scene
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.reports.benchmarking import machine_info, timed, write_json
 
 # The authors' development code on this CPU (same batch and point counts), for comparison.
 REFERENCE = {"train_step_s_512x1024_batch16": 2.2, "sample_s_512x1024_k10": 48.0}
@@ -56,7 +56,12 @@ def flops(run) -> float:
 def benchmark(num_object_points: int, num_scene_points: int, amp: bool, args) -> dict:
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(
-        num_object_points, num_scene_points, point_scale=66.0, use_amp=amp, device="cpu", num_inference_steps=args.inference_steps
+        num_object_points,
+        num_scene_points,
+        point_scale=66.0,
+        use_amp=amp,
+        device="cpu",
+        num_inference_steps=args.inference_steps,
     )
     policy = TaxDPDPolicy(config)
     optimizer = torch.optim.AdamW(policy.parameters(), lr=1e-4)
@@ -109,13 +114,20 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    peak = {"fp32": matmul_gflops(torch.float32, 2048, args.repeats), "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats)}
+    peak = {
+        "fp32": matmul_gflops(torch.float32, 2048, args.repeats),
+        "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats),
+    }
     machine = machine_info()
-    print(f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
-          f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
+    print(
+        f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
+        f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}"
+    )
     print(f"matmul peak (2048^3): fp32 {peak['fp32']:.0f} GFLOP/s, bf16 {peak['bf16']:.0f} GFLOP/s")
-    print(f"model: paper size (hidden 128, 5 DiT blocks, 4 heads), batch {args.batch_size}, "
-          f"DDIM {args.inference_steps} steps")
+    print(
+        f"model: paper size (hidden 128, 5 DiT blocks, 4 heads), batch {args.batch_size}, "
+        f"DDIM {args.inference_steps} steps"
+    )
     results = []
     for spec in args.configs.split(","):
         n_o, n_s = (int(x) for x in spec.split("x"))
@@ -130,7 +142,16 @@ def main() -> None:
                 f"{r['train']['achieved_gflops']:.0f} GFLOP/s = {100 * fraction:.0f}% of peak) | "
                 f"sample K=1 {r['sampling']['K=1']['latency_s']:.3f} s, K=10 {r['sampling']['K=10']['latency_s']:.3f} s"
             )
-    path = write_json(args.output, {"machine": machine, "matmul_peak_gflops": peak, "config": vars(args), "reference_authors_code": REFERENCE, "results": results})
+    path = write_json(
+        args.output,
+        {
+            "machine": machine,
+            "matmul_peak_gflops": peak,
+            "config": vars(args),
+            "reference_authors_code": REFERENCE,
+            "results": results,
+        },
+    )
     print(f"wrote {path}")
 
 

@@ -76,8 +76,12 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--root", type=Path, help="output folder; must not exist (default: $HF_LEROBOT_HOME/<repo-id>)"
     )
-    parser.add_argument("--num-object-points", type=int, help="object points per frame (default: the task's)")
-    parser.add_argument("--num-scene-points", type=int, help="scene points per frame (default: the task's)")
+    parser.add_argument(
+        "--object-cloud-size",
+        type=int,
+        help="object points stored per frame (default: the task's; the network sees --policy.num_object_points)",
+    )
+    parser.add_argument("--scene-cloud-size", type=int, help="scene points stored per frame (default: the task's)")
     parser.add_argument("--split", choices=("train", "val", "test", "all"), default="all", help="default: all")
     parser.add_argument(
         "--frames-per-demo", type=int, default=2, help="independent samplings per demo (>= 2; default: 2)"
@@ -137,8 +141,8 @@ def _convert(args: argparse.Namespace, root: Path, command: str):
     from datasets_conv.rpdiff import convert_rpdiff
 
     options = ConversionOptions(
-        num_object_points=args.num_object_points,
-        num_scene_points=args.num_scene_points,
+        object_cloud_size=args.object_cloud_size,
+        scene_cloud_size=args.scene_cloud_size,
         frames_per_demo=args.frames_per_demo,
         split=args.split,
         seed=args.seed,
@@ -162,7 +166,7 @@ def _convert(args: argparse.Namespace, root: Path, command: str):
 
 
 def _push(root: Path, repo_id: str, private: bool) -> int:
-    from lerobot_taxdpd.dataset_writer import push_dataset
+    from lerobot_taxdpd.data.dataset_writer import push_dataset
 
     try:
         push_dataset(root, repo_id, private=private)
@@ -191,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot.utils.constants import HF_LEROBOT_HOME
 
     from datasets_conv.raw_io import DemoError
-    from lerobot_taxdpd.validation import PointCloudError
+    from lerobot_taxdpd.data.validation import PointCloudError
 
     root = args.root if args.root is not None else HF_LEROBOT_HOME / args.repo_id
     try:

@@ -26,13 +26,13 @@ from datasets_conv.pipeline import (
     DemoRef,
     card_details,
     demo_rng,
+    sampled_frames,
     sampling_indices,
     write_dataset,
 )
 from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.geometry import farthest_point_indices
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DEFAULT_POINT_COUNTS,
     DONE_KEY,
@@ -44,9 +44,9 @@ from lerobot_taxdpd.schema import (
     SUCCESS_KEY,
     cloth_policy_features,
     goal_prediction_features,
-    placement_frame,
 )
-from lerobot_taxdpd.validation import check_point_cloud, check_same_shape
+from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
+from lerobot_taxdpd.maths.geometry import farthest_point_indices
 
 DEMO_GLOB = "demo_*.npz"
 GOAL_SPLIT_DIRS = {"train": ("train_tax3d", "train"), "val": ("val_tax3d", "val"), "test": ("val_ood_tax3d", "test")}
@@ -101,13 +101,7 @@ def goal_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
     check_same_shape(cloth, flow, f"{demo.source}: field 'action_pc'", "field 'flow'")
     hangers = as_cloud(read_field(archive, demo.source, "anchor_pc"), demo.source, "anchor_pc", min_points=num_scene)
     goal = cloth + flow
-    rng = demo_rng(options.seed, demo.source)
-    object_views = sampling_indices(cloth, num_object, options.frames_per_demo, rng)
-    scene_views = sampling_indices(hangers, num_scene, options.frames_per_demo, rng)
-    frames = [
-        placement_frame(cloth[o], hangers[s], goal[o], source=demo.source) for o, s in zip(object_views, scene_views)
-    ]
-    return frames, task
+    return sampled_frames(demo.source, cloth, hangers, counts, options, goal_points=goal), task
 
 
 # -------------------------------------------------------------------------------------- policy rollouts
@@ -208,7 +202,7 @@ def rollout_episode(
     if np.any(counts_field != vertices) or not num_object <= vertices <= padded:
         raise DemoError(
             f"{source}: field 'data/cloth' must hold one true vertex count per episode between "
-            f"{num_object} (--num-object-points) and {padded}, got {np.unique(counts_field).tolist()[:5]}"
+            f"{num_object} (--object-cloud-size) and {padded}, got {np.unique(counts_field).tolist()[:5]}"
         )
     cloth = data["action_pcd"][:, :vertices].astype(np.float64)
     goal = data["ground_truth"][:, :vertices].astype(np.float64)

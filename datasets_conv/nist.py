@@ -30,15 +30,13 @@ from datasets_conv.pipeline import (
     ConversionSummary,
     DemoRef,
     card_details,
-    demo_rng,
-    sampling_indices,
+    sampled_frames,
     write_dataset,
 )
 from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.geometry import transform_points
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features, placement_frame
-from lerobot_taxdpd.validation import check_rigid_transform
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features
+from lerobot_taxdpd.data.validation import check_rigid_transform
 
 NPZ_FIELDS = ("action_init_points", "anchor_points", "goal_tf")
 TEACH_FILES = ("action.ply", "anchor.ply", "goal_tf.npy")
@@ -131,14 +129,7 @@ def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
     transform = np.linalg.inv(goal_tf)
     transform[:3, 3] *= scale
     plug, socket = plug * scale, socket * scale
-    rng = demo_rng(options.seed, demo.source)
-    object_views = sampling_indices(plug, num_object, options.frames_per_demo, rng)
-    scene_views = sampling_indices(socket, num_scene, options.frames_per_demo, rng)
-    frames = []
-    for obj_idx, scene_idx in zip(object_views, scene_views):
-        points = plug[obj_idx]
-        goal = transform_points(transform, points)
-        frames.append(placement_frame(points, socket[scene_idx], goal, transform, source=demo.source))
+    frames = sampled_frames(demo.source, plug, socket, counts, options, transform=transform)
     return frames, f"insert the {demo.key} connector into its socket", unit
 
 

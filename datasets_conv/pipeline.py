@@ -17,9 +17,10 @@ import numpy as np
 from tqdm import tqdm
 
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
-from lerobot_taxdpd.geometry import farthest_point_indices
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, SkippedItem
+from lerobot_taxdpd.data.schema import placement_frame
+from lerobot_taxdpd.data.validation import PointCloudError
+from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 
 SPLITS = ("train", "val", "test", "all")
 
@@ -35,10 +36,11 @@ class DemoRef:
 
 @dataclass
 class ConversionOptions:
-    """Choices shared by every source; `None` point counts mean the task's default from the paper."""
+    """Choices shared by every source; `None` cloud sizes (points stored per frame) mean the task's default
+    from the paper."""
 
-    num_object_points: int | None = None
-    num_scene_points: int | None = None
+    object_cloud_size: int | None = None
+    scene_cloud_size: int | None = None
     frames_per_demo: int = 2
     split: str = "all"
     seed: int = 0
@@ -55,13 +57,13 @@ class ConversionOptions:
             raise ValueError(
                 f"frames_per_demo: LeRobot 0.4.4 needs at least 2 frames per episode, got {self.frames_per_demo}"
             )
-        for name in ("num_object_points", "num_scene_points"):
+        for name in ("object_cloud_size", "scene_cloud_size"):
             value = getattr(self, name)
             if value is not None and value < 3:
                 raise ValueError(f"{name}: need at least 3 points, got {value}")
 
     def point_counts(self, default: tuple[int, int]) -> tuple[int, int]:
-        return (self.num_object_points or default[0], self.num_scene_points or default[1])
+        return (self.object_cloud_size or default[0], self.scene_cloud_size or default[1])
 
 
 @dataclass
@@ -111,6 +113,33 @@ def sampling_indices(points: np.ndarray, num_points: int, count: int, rng: np.ra
     return [farthest_point_indices(points, num_points, start_index=int(s)) for s in starts]
 
 
+def sampled_frames(
+    source: str,
+    object_points: np.ndarray,
+    scene_points: np.ndarray,
+    counts: tuple[int, int],
+    options: ConversionOptions,
+    *,
+    goal_points: np.ndarray | None = None,
+    transform: np.ndarray | None = None,
+) -> list[dict[str, np.ndarray]]:
+    """The frames of one demo: `options.frames_per_demo` farthest-point samplings of its clouds.
+
+    The goal rows are taken with the object's indices from `goal_points`, or, for rigid sources, computed
+    as `transform` applied to the sampled object, so row i of every goal is where row i of its start goes.
+    Samplings depend only on the seed and `source` (see `demo_rng`).
+    """
+    rng = demo_rng(options.seed, source)
+    object_views = sampling_indices(object_points, counts[0], options.frames_per_demo, rng)
+    scene_views = sampling_indices(scene_points, counts[1], options.frames_per_demo, rng)
+    frames = []
+    for object_index, scene_index in zip(object_views, scene_views, strict=True):
+        points = object_points[object_index]
+        goal = transform_points(transform, points) if goal_points is None else goal_points[object_index]
+        frames.append(placement_frame(points, scene_points[scene_index], goal, transform, source=source))
+    return frames
+
+
 def write_dataset(
     demos: Sequence[DemoRef],
     episode: Callable[[DemoRef], tuple[list[dict], str]],
@@ -157,12 +186,12 @@ def write_dataset(
     )
 
 
-def card_details(options: ConversionOptions, num_object_points: int, num_scene_points: int) -> dict[str, str]:
+def card_details(options: ConversionOptions, object_cloud_size: int, scene_cloud_size: int) -> dict[str, str]:
     """Card rows every converter records: how the clouds were sampled and which demos were taken."""
     return {
         "split": options.split,
         "sampling": (
-            f"farthest point sampling, {num_object_points} object / {num_scene_points} scene points; "
+            f"farthest point sampling, {object_cloud_size} object / {scene_cloud_size} scene points; "
             f"{options.frames_per_demo} samplings per demo seeded by random start indices (seed {options.seed})"
         ),
     }

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.validation import PointCloudError, check_point_cloud
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud
 
 
 class DemoError(ValueError):
@@ -94,7 +94,7 @@ def as_finite(value, source: str, field: str, shape: tuple[int | None, ...]) -> 
     """A finite float64 array whose shape matches `shape` (None matches any size)."""
     array = np.asarray(value)
     if array.dtype.kind not in "fiu" or len(array.shape) != len(shape) or any(
-        want is not None and got != want for got, want in zip(array.shape, shape)
+        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
     ):
         expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
         raise DemoError(

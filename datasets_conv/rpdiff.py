@@ -25,15 +25,14 @@ from datasets_conv.pipeline import (
     ConversionSummary,
     DemoRef,
     card_details,
-    demo_rng,
-    sampling_indices,
+    sampled_frames,
     write_dataset,
 )
 from datasets_conv.raw_io import DemoError, as_cloud, dict_entry, natural_key, open_npz, read_field, unwrap_dict
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo
-from lerobot_taxdpd.geometry import pose_to_matrix, transform_points
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features, placement_frame
-from lerobot_taxdpd.validation import check_same_shape
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features
+from lerobot_taxdpd.data.validation import check_same_shape
+from lerobot_taxdpd.maths.geometry import pose_to_matrix, transform_points
 
 START_PCD = "multi_obj_start_pcd"
 FINAL_PCD = "multi_obj_final_pcd"
@@ -200,15 +199,7 @@ def demo_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, i
             f"{demo.source}: field '{final_field}' is not T* (from the child poses) applied to '{child_field}' "
             f"(max error {error:.3g} m > {POSE_TOLERANCE:g} m)"
         )
-    rng = demo_rng(options.seed, demo.source)
-    object_views = sampling_indices(child, num_object, options.frames_per_demo, rng)
-    scene_views = sampling_indices(parent, num_scene, options.frames_per_demo, rng)
-    frames = []
-    for obj_idx, scene_idx in zip(object_views, scene_views):
-        points = child[obj_idx]
-        goal = transform_points(transform, points)
-        frames.append(placement_frame(points, parent[scene_idx], goal, transform, source=demo.source))
-    return frames, task
+    return sampled_frames(demo.source, child, parent, counts, options, transform=transform), task
 
 
 def convert_rpdiff(raw_dir: Path, repo_id: str, root: Path, options: ConversionOptions) -> ConversionSummary:
@@ -218,7 +209,7 @@ def convert_rpdiff(raw_dir: Path, repo_id: str, root: Path, options: ConversionO
     counts = options.point_counts(DEFAULT_POINT_COUNTS.get(name, FALLBACK_POINT_COUNTS))
     task = options.task or (known.task if known else f"place the object as in RPDiff task {name}")
     demos, notes = list_demos(demo_dir, options.split)
-    if known is None and not (options.num_object_points and options.num_scene_points):
+    if known is None and not (options.object_cloud_size and options.scene_cloud_size):
         notes.append(f"{name} is not one of the paper's tasks; point counts not given default to {counts}")
     details = {"RPDiff task": name, **card_details(options, *counts)}
     if known:

@@ -7,17 +7,17 @@ Modeling classes load lazily, so `import lerobot_taxdpd` stays cheap for LeRobot
 
 from importlib import import_module
 
-from lerobot_taxdpd.configuration_gc_dp3 import GcDp3Config
-from lerobot_taxdpd.configuration_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.processor_gc_dp3 import make_gc_dp3_pre_post_processors
-from lerobot_taxdpd.processor_taxdpd import make_taxdpd_pre_post_processors
+from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
+from lerobot_taxdpd.policies.gc_dp3.processor_gc_dp3 import make_gc_dp3_pre_post_processors
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.policies.taxdpd.processor_taxdpd import make_taxdpd_pre_post_processors
 from lerobot_taxdpd.sim import env_config as _sim_env_config  # noqa: F401  (registers --env.type=taxdpd_sim)
 
 __version__ = "0.1.0"
 
 _LAZY = {
-    "TaxDPDPolicy": "lerobot_taxdpd.modeling_taxdpd",
-    "GcDp3Policy": "lerobot_taxdpd.modeling_gc_dp3",
+    "TaxDPDPolicy": "lerobot_taxdpd.policies.taxdpd.modeling_taxdpd",
+    "GcDp3Policy": "lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3",
     "load_goal_predictor": "lerobot_taxdpd.goal_predictors",
     "list_goal_predictors": "lerobot_taxdpd.goal_predictors",
 }

@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.schema import METRICS_FILE
+from lerobot_taxdpd.data.schema import METRICS_FILE
 
 SHIPPED_DIR = Path(__file__).parent / "pretrained"
 
@@ -52,25 +52,32 @@ def resolve_goal_predictor(name_or_path: str | Path) -> str:
     path = Path(text).expanduser()
     if path.is_dir():
         if not (path / "config.json").is_file():
-            raise FileNotFoundError(f"{path}: not a taxdpd checkpoint (no config.json); pass its pretrained_model folder")
+            raise FileNotFoundError(
+                f"{path}: not a taxdpd checkpoint (no config.json); pass its pretrained_model folder"
+            )
         return str(path)
     parts = text.split("/")
     if len(parts) == 2 and all(parts):
         return text
     known = ", ".join(shipped) or "none (this install ships no checkpoints)"
-    raise ValueError(f"unknown goal predictor {text!r}: not a shipped name, a checkpoint folder or a Hub repo id 'owner/name'; shipped names: {known}")
+    raise ValueError(
+        f"unknown goal predictor {text!r}: not a shipped name, a checkpoint folder or a Hub repo id "
+        f"'owner/name'; shipped names: {known}"
+    )
 
 
 def load_goal_predictor(name_or_path: str | Path, **kwargs):
     """A ready `TaxDPDPolicy` (eval mode) for a shipped name, a checkpoint folder or a Hub repo id."""
-    from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
+    from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 
     policy = TaxDPDPolicy.from_pretrained(resolve_goal_predictor(name_or_path), **kwargs)
     return policy.eval()
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m lerobot_taxdpd.goal_predictors", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m lerobot_taxdpd.goal_predictors", description=__doc__.split("\n\n")[0]
+    )
     verbs = parser.add_subparsers(dest="verb", required=True)
     verbs.add_parser("list", help="shipped names with their measured metrics")
     path = verbs.add_parser("path", help="the checkpoint folder or Hub id a name resolves to")
@@ -85,7 +92,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     for name, metrics in list_goal_predictors().items():
         success = metrics.get("success", {})
-        figures = f"success {success['success_rate']:.0%} over {success['trials']} held-out trials" if success else "not evaluated"
+        figures = (
+            f"success {success['success_rate']:.0%} over {success['trials']} held-out trials"
+            if success
+            else "not evaluated"
+        )
         print(f"{name:<20} {figures:<40} {metrics.get('description', '')}")
     return 0
 

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def tiny_config(path: Path) -> Path:
     """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
-    config = json.loads((ROOT / "configs" / "taxdpd_ablation.json").read_text())
+    config = json.loads((ROOT / "lerobot_taxdpd" / "configs" / "taxdpd_ablation.json").read_text())
     for flag in TINY_TAXDPD:
         field, value = flag.removeprefix("--policy.").split("=")
         config["policy"][field] = value if field == "device" else int(value)
@@ -79,5 +79,7 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
 def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
     result = run("-m", "lerobot_taxdpd.sim", "pretrain", "--task", "book_shelf", "--seed=1", "--bogus=1")
     assert result.returncode == 2 and "unrecognized arguments: --bogus=1\n" in result.stderr
-    result = run("-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false")
+    result = run(
+        "-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false"
+    )
     assert result.returncode == 2 and "unrecognized arguments: --policy.use_gmm=false" in result.stderr

@@ -14,9 +14,9 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, load_goal_predictor, make_gc_dp3_pre_post_processors
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.modeling_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
+from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 from lerobot_taxdpd.sim.cloth.cli import main
 
 CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))
@@ -25,7 +25,12 @@ CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))
 @pytest.fixture(scope="module")
 def checkpoints(tmp_path_factory):
     root = tmp_path_factory.mktemp("checkpoints")
-    inputs = {OBJECT_KEY: CLOUD, SCENE_KEY: CLOUD, GOAL_CLOUD_KEY: CLOUD, STATE_KEY: PolicyFeature(FeatureType.STATE, (12,))}
+    inputs = {
+        OBJECT_KEY: CLOUD,
+        SCENE_KEY: CLOUD,
+        GOAL_CLOUD_KEY: CLOUD,
+        STATE_KEY: PolicyFeature(FeatureType.STATE, (12,)),
+    }
     config = GcDp3Config(
         input_features=inputs,
         output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (6,))},
@@ -41,7 +46,10 @@ def checkpoints(tmp_path_factory):
     torch.manual_seed(0)
     policy = GcDp3Policy(config)
     stats = {
-        STATE_KEY: {"min": torch.tensor([-4.0, -4.0, 4.0] * 2 + [-2.0] * 6), "max": torch.tensor([4.0, 2.0, 8.0] * 2 + [2.0] * 6)},
+        STATE_KEY: {
+            "min": torch.tensor([-4.0, -4.0, 4.0] * 2 + [-2.0] * 6),
+            "max": torch.tensor([4.0, 2.0, 8.0] * 2 + [2.0] * 6),
+        },
         ACTION_KEY: {"min": torch.full((6,), -0.08), "max": torch.full((6,), 0.08)},
     }
     gc_dp3 = root / "gc_dp3"

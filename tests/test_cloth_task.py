@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.sim.cloth import checks
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.mesh import MIN_EDGE_INDEX, Hole, build_cloth_mesh, sample_holes, sample_surface

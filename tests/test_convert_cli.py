@@ -13,10 +13,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from conftest import BIN, TINY_TAXDPD, run_cli
-from convert_fixtures import leftovers, nist_demo, rpdiff_demo, save_nist_npz, save_rpdiff_demo
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from conftest import BIN, TINY_TAXDPD, run_cli
+from convert_fixtures import leftovers, nist_demo, rpdiff_demo, save_nist_npz, save_rpdiff_demo
 from datasets_conv.__main__ import main
 from datasets_conv.rpdiff import RPDIFF_TASKS
 

@@ -6,15 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TINY_GC_DP3, run_cli
-from convert_fixtures import dedo_goal_demo, leftovers, row_indices, save_dedo_goal_demo, write_dedo_rollouts
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from conftest import TINY_GC_DP3, run_cli
+from convert_fixtures import dedo_goal_demo, leftovers, row_indices, save_dedo_goal_demo, write_dedo_rollouts
 from datasets_conv.dedo import convert_dedo_goals, convert_dedo_rollouts
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import read_card_info
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import read_card_info
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,
@@ -24,7 +24,7 @@ from lerobot_taxdpd.schema import (
     STATE_KEY,
     SUCCESS_KEY,
 )
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.validation import PointCloudError
 
 
 class _TouchOnUnpickle:
@@ -126,8 +126,15 @@ def test_rollouts_become_time_series_without_padding(tmp_path):
     card, _ = read_card_info(root)
     assert "unknown" in card.details["next.success"]
     run_cli(
-        "lerobot-train", *TINY_GC_DP3, "--dataset.repo_id=local/cloth_rollouts", f"--dataset.root={root}",
-        "--policy.push_to_hub=false", "--steps=2", "--batch_size=2", "--num_workers=0", f"--output_dir={tmp_path / 'train'}",
+        "lerobot-train",
+        *TINY_GC_DP3,
+        "--dataset.repo_id=local/cloth_rollouts",
+        f"--dataset.root={root}",
+        "--policy.push_to_hub=false",
+        "--steps=2",
+        "--batch_size=2",
+        "--num_workers=0",
+        f"--output_dir={tmp_path / 'train'}",
     )
     assert (tmp_path / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file()
 

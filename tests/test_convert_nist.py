@@ -6,15 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from convert_fixtures import leftovers, nist_demo, row_indices, save_nist_npz, save_nist_teach
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from convert_fixtures import leftovers, nist_demo, row_indices, save_nist_npz, save_nist_teach
 from datasets_conv.nist import convert_nist, split_demos
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
-from lerobot_taxdpd.dataset_writer import read_card_info
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import read_card_info
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError
 
 
 def _check_goals(dataset: LeRobotDataset, truth: list[tuple[str, np.ndarray, np.ndarray]]) -> None:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from convert_fixtures import leftovers
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
+from convert_fixtures import leftovers
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 
 
 def test_failure_inside_create_removes_the_partial_folder(tmp_path):

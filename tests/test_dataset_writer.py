@@ -4,11 +4,18 @@ import json
 
 import numpy as np
 import pytest
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, goal_prediction_features, placement_frame
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter, read_card_info
+from lerobot_taxdpd.data.scaling import SCALE_FILE, median_object_radius
+from lerobot_taxdpd.data.schema import (
+    ACTION_KEY,
+    GOAL_TRANSFORM_KEY,
+    OBJECT_KEY,
+    goal_prediction_features,
+    placement_frame,
+)
+from lerobot_taxdpd.data.validation import PointCloudError
 
 CARD = DatasetCardInfo(source="unit test", source_license="apache-2.0", command="pytest")
 
@@ -45,11 +52,24 @@ def test_written_dataset_loads_with_lerobot_and_carries_a_card(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no partial folder left
 
 
+def test_the_writer_records_the_median_object_radius_that_a_scan_of_the_data_finds(tmp_path):
+    root = tmp_path / "ds"
+    write(root, episodes=3)
+    recorded = json.loads((root / SCALE_FILE).read_text())
+    assert recorded["frames"] == 6 and recorded["field"] == OBJECT_KEY
+    meta = LeRobotDatasetMetadata("local/test", root=root)  # LeRobot loads the metadata folder beside it
+    assert meta.total_frames == 6
+    (root / SCALE_FILE).unlink()  # a dataset made elsewhere: its parquet files are scanned
+    assert median_object_radius(root) == recorded["median_object_radius"]
+
+
 def test_error_mid_conversion_leaves_nothing_behind(tmp_path):
     root = tmp_path / "ds"
     rng = np.random.default_rng(0)
     with pytest.raises(RuntimeError, match="boom"):
-        with DatasetWriter("local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD) as w:
+        with DatasetWriter(
+            "local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD
+        ) as w:
             w.add_episode([frame(rng), frame(rng)], "place it")
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
@@ -62,7 +82,9 @@ def test_existing_output_is_refused_and_replaced_only_when_complete(tmp_path):
         write(root)
     before = json.loads((root / "meta" / "info.json").read_text())
     with pytest.raises(RuntimeError):
-        with DatasetWriter("local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD, overwrite=True):
+        with DatasetWriter(
+            "local/test", root, goal_prediction_features(16, 32, with_transform=True), fps=10, card=CARD, overwrite=True
+        ):
             raise RuntimeError("interrupted")
     assert json.loads((root / "meta" / "info.json").read_text()) == before  # the earlier dataset is intact
     write(root, episodes=3, overwrite=True)

@@ -17,7 +17,9 @@ def test_demo_evaluates_a_shipped_predictor_and_writes_report_and_figures(tmp_pa
     assert shipped_rigid, "the package ships no goal predictor for a rigid task"
     task = shipped_rigid[0]
     output = tmp_path / "demo"
-    result = run_cli("taxdpd-demo", "--tasks", task, "--trials", "2", "--num-samples", "2", "--figures", "1", "--output", output)
+    result = run_cli(
+        "taxdpd-demo", "--tasks", task, "--trials", "2", "--num-samples", "2", "--figures", "1", "--output", output
+    )
     assert f"{task}: 2 held-out scenes" in result.stdout
     summary = json.loads((output / "summary.json").read_text())
     entry = summary["tasks"][task]

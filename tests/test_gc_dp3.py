@@ -7,8 +7,8 @@ import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 
 from lerobot_taxdpd import GcDp3Config, make_gc_dp3_pre_post_processors
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
 CLOUDS = (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY)
 SMALL = {
@@ -111,7 +111,9 @@ def test_single_observation_runs_end_to_end_and_chunks_actions(monkeypatch):
 
 def test_training_batch_gives_a_finite_loss_with_gradients_everywhere():
     policy = GcDp3Policy(make_config(points_per_cloud=8))
-    batch = {key: value.unsqueeze(1).repeat(1, 2, *[1] * (value.dim() - 1)) for key, value in observation(batch=(5,)).items()}
+    batch = {
+        key: value.unsqueeze(1).repeat(1, 2, *[1] * (value.dim() - 1)) for key, value in observation(batch=(5,)).items()
+    }
     batch[ACTION_KEY] = torch.rand(5, 4, 6) * 2 - 1
     batch["action_is_pad"] = torch.zeros(5, 4, dtype=torch.bool)
     loss, _ = policy.forward(batch)

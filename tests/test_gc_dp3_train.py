@@ -15,9 +15,8 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import TINY_GC_DP3 as TINY
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,
@@ -27,6 +26,7 @@ from lerobot_taxdpd.schema import (
     SUCCESS_KEY,
     cloth_policy_features,
 )
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
 POINTS = 32
 FRAMES = 12
@@ -38,7 +38,9 @@ def write_goal_side_dataset(root, episodes: int = 4):
     cloud is the only input that tells which way to move.
     """
     rng = np.random.default_rng(0)
-    hangers = np.concatenate([rng.normal([-2.0, 0.0, 4.0], 0.2, (POINTS // 2, 3)), rng.normal([2.0, 0.0, 4.0], 0.2, (POINTS // 2, 3))])
+    hangers = np.concatenate(
+        [rng.normal([-2.0, 0.0, 4.0], 0.2, (POINTS // 2, 3)), rng.normal([2.0, 0.0, 4.0], 0.2, (POINTS // 2, 3))]
+    )
     card = DatasetCardInfo(source="synthetic test data", source_license="apache-2.0")
     features = cloth_policy_features(POINTS, POINTS)
     with DatasetWriter("local/goal_side", root, features, fps=20, card=card) as writer:

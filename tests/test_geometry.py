@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd.geometry import (
+from lerobot_taxdpd.data.validation import PointCloudError
+from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
     farthest_point_indices,
     farthest_point_sample,
@@ -20,7 +21,6 @@ from lerobot_taxdpd.geometry import (
     rotation_angle,
     transform_points,
 )
-from lerobot_taxdpd.validation import PointCloudError
 
 
 def random_transform(generator: torch.Generator) -> torch.Tensor:
@@ -128,6 +128,12 @@ def test_quaternion_xyzw_and_6d_rotations():
     assert torch.allclose(rotation_6d_to_matrix(matrix_to_rotation_6d(rotations)), rotations, atol=1e-12)
 
 
+def _moved(clouds: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+    """Each cloud (B, N, 3) under each of its transforms (B, T, 4, 4): (B, T, N, 3)."""
+    pairs = zip(clouds, transforms, strict=True)
+    return torch.stack([torch.stack([transform_points(t, cloud) for t in ts]) for cloud, ts in pairs])
+
+
 def test_lifting_anchor_motion_is_exact_for_rigid_placements_even_on_flat_clouds():
     g = torch.Generator().manual_seed(3)
     solid = torch.rand(2, 400, 3, generator=g, dtype=torch.float64) * 0.05
@@ -136,8 +142,7 @@ def test_lifting_anchor_motion_is_exact_for_rigid_placements_even_on_flat_clouds
     for points in (solid, flat):
         anchors = points[:, farthest_point_sample(points[0], 64)]
         transforms = torch.stack([random_transform(g) for _ in range(6)]).reshape(2, 3, 4, 4)
-        anchor_goals = torch.stack([torch.stack([transform_points(t, a) for t in ts]) for a, ts in zip(anchors, transforms)])
-        expected = torch.stack([torch.stack([transform_points(t, p) for t in ts]) for p, ts in zip(points, transforms)])
+        anchor_goals, expected = _moved(anchors, transforms), _moved(points, transforms)
         lifted = lift_point_motion(points, anchors, anchor_goals)
         assert lifted.shape == (2, 3, 400, 3)
         torch.testing.assert_close(lifted, expected, atol=1e-6, rtol=0)

@@ -7,6 +7,7 @@ import json
 
 import pytest
 import torch
+from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import install_in_hub_cache, run_cli
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, list_goal_predictors, load_goal_predictor
@@ -15,7 +16,9 @@ from lerobot_taxdpd.goal_predictors import SHIPPED_DIR, main, resolve_goal_predi
 
 def _saved_policy(folder, metrics=None) -> TaxDPDPolicy:
     torch.manual_seed(0)
-    config = TaxDPDConfig.for_point_clouds(16, 32, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu")
+    config = TaxDPDConfig.for_point_clouds(
+        16, 32, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu"
+    )
     policy = TaxDPDPolicy(config)
     policy.metrics = metrics or {}
     policy.save_pretrained(folder)
@@ -70,3 +73,7 @@ def test_every_shipped_predictor_loads_by_name_and_states_its_measured_metrics(n
     generator = torch.Generator().manual_seed(0)
     goals = policy.sample_goals(torch.rand(1, n_o, 3) * 0.05, torch.rand(1, n_s, 3) * 0.3, 2, generator=generator)
     assert goals.shape == (1, 2, n_o, 3) and bool(torch.isfinite(goals).all())
+    # its saved processors name their steps by registry name, which the package registers wherever it lives
+    preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(folder))
+    assert "UnpackEnvironmentPointCloudsStep" in [type(step).__name__ for step in preprocessor.steps]
+    assert type(postprocessor.steps[-1]).__name__ == "FlattenGoalCloudStep"

@@ -8,7 +8,7 @@ import copy
 import torch
 
 from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.synthetic import evaluate_slot_predictor, write_slot_dataset
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, write_slot_dataset
 
 N_O, N_S, K = 64, 128, 8
 STEPS = 500
@@ -21,7 +21,7 @@ MIN_COVERAGE = 0.6
 
 def test_two_slot_task_is_learnt_through_lerobot_train(cli, tmp_path):
     dataset = write_slot_dataset(
-        tmp_path / "slots", episodes=128, num_object_points=N_O, num_scene_points=N_S, yaw_range=0.0, seed=0
+        tmp_path / "slots", episodes=128, object_cloud_size=N_O, scene_cloud_size=N_S, yaw_range=0.0, seed=0
     )
     cli(
         "lerobot-train",

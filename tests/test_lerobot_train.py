@@ -10,15 +10,18 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
-from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
 from conftest import TINY_TAXDPD as TINY
-from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.synthetic import make_slot_scene, write_slot_dataset
+from lerobot_taxdpd import TaxDPDPolicy
+from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
+
 
 @pytest.fixture(scope="module")
 def slot_dataset(tmp_path_factory):
-    return write_slot_dataset(tmp_path_factory.mktemp("data") / "slots", episodes=8, num_object_points=32, num_scene_points=64)
+    return write_slot_dataset(
+        tmp_path_factory.mktemp("data") / "slots", episodes=8, object_cloud_size=32, scene_cloud_size=64
+    )
 
 
 def train(cli, dataset, output_dir, *args, steps=4):
@@ -58,19 +61,31 @@ def test_train_fine_tune_and_load_through_lerobot(cli, slot_dataset, tmp_path):
         config, pretrained_path=str(tuned), preprocessor_overrides={"device_processor": {"device": "cpu"}}
     )
     scene = make_slot_scene(np.random.default_rng(0), 32, 64)
-    observation = preprocessor({OBJECT_KEY: torch.from_numpy(scene.object_points), SCENE_KEY: torch.from_numpy(scene.scene_points)})
+    observation = preprocessor(
+        {OBJECT_KEY: torch.from_numpy(scene.object_points), SCENE_KEY: torch.from_numpy(scene.scene_points)}
+    )
     action = postprocessor(after.select_action(observation))
     assert action.shape == (1, 32 * 3) and bool(torch.isfinite(action).all())
 
 
 def test_unknown_dataset_layout_fails_with_the_missing_feature_named(cli, tmp_path):
-    features = {"observation.state": {"dtype": "float32", "shape": (3,), "names": None}, "action": {"dtype": "float32", "shape": (3,), "names": None}}
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (3,), "names": None},
+        "action": {"dtype": "float32", "shape": (3,), "names": None},
+    }
     card = DatasetCardInfo(source="test", source_license="apache-2.0")
     with DatasetWriter("local/wrong", tmp_path / "wrong", features, fps=10, card=card) as writer:
         frame = {"observation.state": np.zeros(3, np.float32), "action": np.zeros(3, np.float32)}
         writer.add_episode([frame, frame], "nothing")
     with pytest.raises(pytest.fail.Exception, match="observation.pointcloud.object"):
         cli(
-            "lerobot-train", "--policy.type=taxdpd", "--dataset.repo_id=local/wrong", f"--dataset.root={tmp_path / 'wrong'}",
-            "--policy.push_to_hub=false", "--steps=1", "--num_workers=0", f"--output_dir={tmp_path / 'out'}", *TINY,
+            "lerobot-train",
+            "--policy.type=taxdpd",
+            "--dataset.repo_id=local/wrong",
+            f"--dataset.root={tmp_path / 'wrong'}",
+            "--policy.push_to_hub=false",
+            "--steps=1",
+            "--num_workers=0",
+            f"--output_dir={tmp_path / 'out'}",
+            *TINY,
         )

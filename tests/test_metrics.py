@@ -6,13 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd import metrics
-from lerobot_taxdpd.geometry import make_transform, rotation_about_z, transform_points
+from lerobot_taxdpd.maths import metrics
+from lerobot_taxdpd.maths.geometry import make_transform, rotation_about_z, transform_points
 
 
 def test_translation_rotation_and_rmse_of_a_known_motion():
     cloud = np.random.default_rng(0).normal(size=(200, 3))
-    motion = make_transform(rotation_about_z(torch.tensor(math.radians(7.0), dtype=torch.float64)), torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64))
+    motion = make_transform(
+        rotation_about_z(torch.tensor(math.radians(7.0), dtype=torch.float64)),
+        torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64),
+    )
     moved = transform_points(motion.numpy(), cloud)
     assert metrics.rotation_error_deg(moved, cloud) == pytest.approx(7.0, abs=1e-6)
     shifted = cloud + np.array([0.003, 0.004, 0.0])
@@ -24,6 +27,21 @@ def test_winner_take_all_picks_the_best_sample():
     target = np.zeros((1, 10, 3))
     samples = np.stack([np.full((10, 3), v) for v in (0.3, 0.01, -0.2)])[None]
     assert metrics.winner_take_all_rmse(samples, target)[0] == pytest.approx(0.01 * math.sqrt(3))
+
+
+def test_each_sample_is_scored_against_the_valid_goal_it_went_for():
+    cloud = np.random.default_rng(1).normal(size=(50, 3))
+    turn = make_transform(
+        rotation_about_z(torch.tensor(math.radians(5.0), dtype=torch.float64)), torch.zeros(3, dtype=torch.float64)
+    )
+    goals = np.stack([cloud, cloud + [2.0, 0.0, 0.0]])  # two valid goals, 2 m apart
+    samples = np.stack([goals[1] + [0.0, 0.01, 0.0], transform_points(turn.numpy(), goals[0])])
+    scores = metrics.score_against_valid_goals(samples, goals)
+    assert scores.nearest.tolist() == [1, 0]
+    assert scores.rmse.shape == (2, 2)
+    assert scores.translation_error == pytest.approx([0.01, np.linalg.norm(samples[1].mean(0) - cloud.mean(0))])
+    assert scores.rotation_error_deg == pytest.approx([0.0, 5.0], abs=1e-4)
+    assert scores.nearest_rmse[0] == pytest.approx(0.01)
 
 
 def test_coverage_and_precision_of_multimodal_samples():

@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 import torch
 from lerobot.configs.policies import PreTrainedConfig
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.processor import PolicyProcessorPipeline
 
 from conftest import install_in_hub_cache
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
-from lerobot_taxdpd.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.validation import PointCloudError
+from lerobot_taxdpd.apps.synthetic import write_slot_dataset
+from lerobot_taxdpd.data.scaling import SCALE_FILE
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError
 
 N_O, N_S = 32, 64
 
@@ -21,7 +24,15 @@ N_O, N_S = 32, 64
 def tiny_policy(**overrides) -> TaxDPDPolicy:
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(
-        N_O, N_S, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, num_inference_steps=2, device="cpu", **overrides
+        N_O,
+        N_S,
+        hidden_dim=16,
+        num_blocks=1,
+        num_heads=2,
+        point_scale=20.0,
+        num_inference_steps=2,
+        device="cpu",
+        **overrides,
     )
     return TaxDPDPolicy(config).eval()
 
@@ -29,6 +40,27 @@ def tiny_policy(**overrides) -> TaxDPDPolicy:
 def clouds(batch: int = 2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     return torch.rand(batch, N_O, 3, generator=g) * 0.1, torch.rand(batch, N_S, 3, generator=g)
+
+
+def test_point_scale_comes_from_the_dataset_metadata_or_a_scan_of_datasets_made_elsewhere(tmp_path):
+    root = write_slot_dataset(tmp_path / "slots", episodes=3, object_cloud_size=N_O, scene_cloud_size=N_S)
+    config = dict(hidden_dim=16, num_blocks=1, num_heads=2, object_scale=3.0, device="cpu")
+    stats = json.loads((root / SCALE_FILE).read_text())
+    written = TaxDPDPolicy(
+        TaxDPDConfig.for_point_clouds(N_O, N_S, **config), dataset_meta=LeRobotDatasetMetadata("local/slots", root=root)
+    )
+    assert written.config.point_scale == pytest.approx(3.0 / stats["median_object_radius"])
+    # The metadata, not the data, is what is read: a recorded radius of 0.5 m gives 3 / 0.5 model units a metre.
+    (root / SCALE_FILE).write_text(json.dumps({**stats, "median_object_radius": 0.5}))
+    recorded = TaxDPDPolicy(
+        TaxDPDConfig.for_point_clouds(N_O, N_S, **config), dataset_meta=LeRobotDatasetMetadata("local/slots", root=root)
+    )
+    assert recorded.config.point_scale == pytest.approx(6.0)
+    (root / SCALE_FILE).unlink()
+    scanned = TaxDPDPolicy(
+        TaxDPDConfig.for_point_clouds(N_O, N_S, **config), dataset_meta=LeRobotDatasetMetadata("local/slots", root=root)
+    )
+    assert scanned.config.point_scale == written.config.point_scale
 
 
 def test_public_api_shapes_and_frames():
@@ -166,7 +198,9 @@ def test_saved_processors_accept_lerobots_override_keys(tmp_path):
         "rename_observations_processor": {"rename_map": {}},
         "normalizer_processor": {"stats": None},
     }
-    reloaded = PolicyProcessorPipeline.from_pretrained(tmp_path, config_filename="policy_preprocessor.json", overrides=overrides)
+    reloaded = PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_preprocessor.json", overrides=overrides
+    )
     PolicyProcessorPipeline.from_pretrained(
         tmp_path, config_filename="policy_postprocessor.json", overrides={"unnormalizer_processor": {"stats": None}}
     )
@@ -186,7 +220,12 @@ def test_saved_processors_accept_lerobots_override_keys(tmp_path):
         {"use_rotation_noise": False},
         {"use_deformation_embedding": False},
         {"local_diffusion": "se3"},
-        {"use_gmm": False, "disentangled": False, "use_reconstruction_embedding": False, "use_deformation_embedding": False},
+        {
+            "use_gmm": False,
+            "disentangled": False,
+            "use_reconstruction_embedding": False,
+            "use_deformation_embedding": False,
+        },
     ],
 )
 def test_every_ablation_trains_and_samples(switches):

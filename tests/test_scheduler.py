@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from lerobot_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
+from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
 def _config(prediction_type: str = "epsilon") -> TaxDPDConfig:

@@ -9,8 +9,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from lerobot_taxdpd.geometry import matrix_to_quaternion_xyzw, quaternion_xyzw_to_matrix
-from lerobot_taxdpd.metrics import coverage_precision, coverage_precision_from_rmse, pairwise_rmse
+from lerobot_taxdpd.maths.geometry import matrix_to_quaternion_xyzw, quaternion_xyzw_to_matrix
+from lerobot_taxdpd.maths.metrics import coverage_precision, coverage_precision_from_rmse, pairwise_rmse
 from lerobot_taxdpd.sim.bodies import box, create_body, cylinder, prism
 from lerobot_taxdpd.sim.cameras import CameraSpec, orbit_cameras, render_segmented_clouds
 from lerobot_taxdpd.sim.controller import penetration, sweep_to_goal
@@ -109,7 +109,7 @@ def test_every_corner_of_a_connector_space_builds_solid_bodies(family):
     names = list(space.ranges)
     with physics_world() as client:
         for corner in itertools.product(*(space.ranges[name] for name in names)):
-            plug, socket = CONNECTOR_BUILDERS[family](dict(zip(names, corner)))
+            plug, socket = CONNECTOR_BUILDERS[family](dict(zip(names, corner, strict=True)))
             create_body(client, list(plug.parts), mass=0.02)
             create_body(client, list(socket.parts))
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from conftest import run_cli
-from lerobot_taxdpd.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.generate import generate_dataset
 from lerobot_taxdpd.sim.tasks import get_task
@@ -69,7 +69,7 @@ def test_generated_demos_round_trip_through_lerobot(tmp_path):
         progress=False,
     )
     _, frames_again = _frames(again, "local/again")
-    for a, b in zip(frames, frames_again):
+    for a, b in zip(frames, frames_again, strict=True):
         torch.testing.assert_close(a[OBJECT_KEY], b[OBJECT_KEY], atol=0, rtol=0)
         torch.testing.assert_close(a[ACTION_KEY], b[ACTION_KEY], atol=0, rtol=0)
 

@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from conftest import run_cli
+from lerobot_taxdpd.reports.benchmarking import write_json
 from lerobot_taxdpd.sim.cli import main
-from lerobot_taxdpd.sim.harness import evaluate, write_report
+from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.predictors import GoalPredictor, OraclePredictor
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
@@ -58,7 +59,7 @@ def test_ground_truth_succeeds_covers_every_mode_and_draws_figures(tmp_path):
         "mug_medrack_seed1_samples.png",
     ]
     assert all(p.read_bytes().startswith(PNG_SIGNATURE) for p in tmp_path.iterdir())
-    path = write_report(report, tmp_path / "out" / "report.json")
+    path = write_json(tmp_path / "out" / "report.json", report)
     assert json.loads(path.read_text())["success"] == report["success"]
 
 

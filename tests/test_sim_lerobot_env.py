@@ -17,8 +17,8 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE
 
 import lerobot_taxdpd  # noqa: F401  (registers the env type and the gymnasium ids)
 from conftest import run_cli
-from lerobot_taxdpd.point_cloud_steps import UnpackEnvironmentPointCloudsStep
-from lerobot_taxdpd.schema import OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.policies.point_cloud_steps import UnpackEnvironmentPointCloudsStep
 from lerobot_taxdpd.sim.env_config import TASK_POINT_COUNTS, TaxDPDSimEnvConfig
 from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import make_trial

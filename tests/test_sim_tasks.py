@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_taxdpd.geometry import estimate_rigid_transform
-from lerobot_taxdpd.schema import placement_frame
+from lerobot_taxdpd.data.schema import placement_frame
+from lerobot_taxdpd.maths.geometry import estimate_rigid_transform
 from lerobot_taxdpd.sim.controller import penetration
 from lerobot_taxdpd.sim.poses import perturbation, set_body_pose, transform
 from lerobot_taxdpd.sim.tasks import get_task, task_names

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pybullet as pb
 
-from lerobot_taxdpd.geometry import matrix_to_quaternion_xyzw
+from lerobot_taxdpd.maths.geometry import matrix_to_quaternion_xyzw
 
 IDENTITY_QUAT = (0.0, 0.0, 0.0, 1.0)
 MAX_COMPOUND_CHILDREN = 16

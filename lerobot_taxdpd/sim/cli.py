@@ -49,7 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--task", required=True, choices=tasks)
     source = evaluate.add_mutually_exclusive_group(required=True)
     source.add_argument(
-        "--policy.path", dest="policy_path", help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id"
+        "--policy.path",
+        dest="policy_path",
+        help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id",
     )
     source.add_argument(
         "--predictor",
@@ -68,18 +70,24 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain = verbs.add_parser(
         "pretrain",
         help="demos, lerobot-train, held-out eval, and a packaged checkpoint",
-        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) and --seed=<n> are passed on to lerobot-train.",
+        epilog="Any --policy.<field>=<value> flag (e.g. --policy.use_gmm=false) and --seed=<n> are passed on "
+        "to lerobot-train.",
     )
     pretrain.add_argument("--task", required=True, choices=task_names())
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
     pretrain.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
-    pretrain.add_argument("--config", type=Path, default=None, help="lerobot-train config (default: configs/taxdpd_cpu.json)")
+    pretrain.add_argument(
+        "--config", default=None, help="a shipped recipe name or a lerobot-train config file (default: taxdpd_cpu)"
+    )
     pretrain.add_argument("--trials", type=int, default=100, help="held-out evaluation trials (default: 100)")
     pretrain.add_argument("--num-samples", type=int, default=10, help="goals sampled per trial, K (default: 10)")
     pretrain.add_argument("--output", type=Path, default=None, help="work folder (default: results/pretrain/<task>)")
     pretrain.add_argument("--ship", type=Path, default=None, help="save the evaluated checkpoint as <SHIP>/<task>")
     pretrain.add_argument(
-        "--dataset", type=Path, default=None, help="demonstrations folder, generated if missing (default: <output>/data)"
+        "--dataset",
+        type=Path,
+        default=None,
+        help="demonstrations folder, generated if missing (default: <output>/data)",
     )
     return parser
 
@@ -92,7 +100,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         args.output or Path("results/pretrain") / args.task,
         episodes=args.episodes,
         steps=args.steps,
-        config_path=args.config or CPU_RECIPE,
+        recipe=args.config or CPU_RECIPE,
         trials=args.trials,
         num_samples=args.num_samples,
         ship=args.ship,
@@ -122,8 +130,9 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from lerobot_taxdpd.sim.harness import evaluate, write_report
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.reports.benchmarking import write_json
+    from lerobot_taxdpd.sim.harness import evaluate
     from lerobot_taxdpd.sim.predictors import OraclePredictor, load_predictor
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
@@ -158,7 +167,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         total=args.trials,
     )
     report["predictor"] = args.policy_path or args.predictor
-    path = write_report(report, args.output / f"{task.name}_eval.json")
+    path = write_json(args.output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(
         f"{task.name}: success {s['success_rate']:.1%} (95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%}) over "
@@ -176,7 +185,9 @@ def main(argv: list[str] | None = None) -> int:
         return cloth_main(argv)
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
-    overrides = [arg for arg in unknown if args.verb == "pretrain" and arg.startswith(("--policy.", "--seed=")) and "=" in arg]
+    overrides = [
+        arg for arg in unknown if args.verb == "pretrain" and arg.startswith(("--policy.", "--seed=")) and "=" in arg
+    ]
     if len(overrides) < len(unknown):
         parser.error(f"unrecognized arguments: {' '.join(arg for arg in unknown if arg not in overrides)}")
     try:

@@ -13,7 +13,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS
 
 GYM_NAMESPACE = "lerobot_taxdpd"
 #: Task name -> key of its (N_O, N_S) in DEFAULT_POINT_COUNTS; mirrors `lerobot_taxdpd.sim.tasks`.

@@ -12,8 +12,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.schema import GOAL_DATASET_FPS, goal_prediction_features, placement_frame
 from lerobot_taxdpd.sim.splits import check_split
 from lerobot_taxdpd.sim.tasks import PlacementTask
 from lerobot_taxdpd.sim.trials import make_trial

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from lerobot_taxdpd.geometry import estimate_rigid_transform
+from lerobot_taxdpd.maths.geometry import estimate_rigid_transform
 from lerobot_taxdpd.sim.cameras import render_rgb
 from lerobot_taxdpd.sim.poses import set_body_pose
 from lerobot_taxdpd.sim.splits import check_split

@@ -9,31 +9,25 @@ coverage@K and precision@K, counting each mode (peg, slot, support, socket) once
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import time
 from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-import pybullet
 import torch
 from tqdm import tqdm
 
-from lerobot_taxdpd.geometry import estimate_rigid_transform, transform_points
 from lerobot_taxdpd.goal_predictors import has_placement_distribution
-from lerobot_taxdpd.metrics import (
+from lerobot_taxdpd.maths.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.maths.metrics import (
     coverage_precision_from_rmse,
-    pairwise_rmse,
-    point_rmse,
-    rotation_error_deg,
+    score_against_valid_goals,
     success_summary,
     transform_errors,
-    translation_error,
 )
-from lerobot_taxdpd.sim.figures import plot_goal_samples, plot_weight_map
+from lerobot_taxdpd.reports.benchmarking import machine_info
+from lerobot_taxdpd.reports.plots import plot_goal_samples, plot_weight_map
 from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
 from lerobot_taxdpd.sim.trials import Trial, execute
 
@@ -67,14 +61,12 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
     goals = [transform_points(t, object_points) for t in valid]  # per mode: (V, N, 3)
     flat_goals = np.concatenate(goals)
     flat_transforms = np.concatenate(valid)
-    rmse = pairwise_rmse(samples, flat_goals)  # (K, all variants)
-    nearest = int(np.argmin(rmse[0]))
-    reference = flat_goals[nearest]
-    executed = samples[0]
+    scores = score_against_valid_goals(samples, flat_goals)  # against every variant of every mode
+    rmse, nearest = scores.rmse, int(scores.nearest[0])
     record = {
-        "translation_error_mm": float(translation_error(executed, reference)) * 1000,
-        "rotation_error_deg": float(rotation_error_deg(executed, reference)),
-        "rmse_mm": float(point_rmse(executed, reference)) * 1000,
+        "translation_error_mm": float(scores.translation_error[0]) * 1000,
+        "rotation_error_deg": float(scores.rotation_error_deg[0]),
+        "rmse_mm": float(scores.nearest_rmse[0]) * 1000,
         "winner_take_all_rmse_mm": float(rmse.min()) * 1000,
         "nearest_goal_mode": trial.modes[
             int(np.searchsorted(np.cumsum([len(g) for g in goals]), nearest, side="right"))
@@ -88,7 +80,8 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
         record["gripper_rotation_error_deg"] = float(rotation)
     if trial.task.multi_modal:
         bounds = np.cumsum([0, *[len(g) for g in goals]])
-        per_mode = np.stack([rmse[:, a:b].min(1) for a, b in zip(bounds[:-1], bounds[1:])], 1)  # (K, modes)
+        spans = zip(bounds[:-1], bounds[1:], strict=True)
+        per_mode = np.stack([rmse[:, a:b].min(1) for a, b in spans], 1)  # (K, modes)
         quality = coverage_precision_from_rmse(per_mode, trial.task.coverage_threshold)
         record.update(coverage=quality["coverage"], precision=quality["precision"], num_modes=len(goals))
     return record
@@ -131,28 +124,45 @@ def evaluate(
         record["seconds"] = time.perf_counter() - tick
         records.append(record)
         if figures_dir is not None and index < num_figures:
-            figures.append(
-                str(
-                    plot_goal_samples(
-                        trial,
-                        samples,
-                        figures_dir / f"{task.name}_seed{trial.seed}_samples.png",
-                        success=outcome.success,
-                    )
-                )
-            )
-            if has_placement_distribution(predictor):
-                with torch.inference_mode():
-                    weights, means = predictor.placement_distribution(
-                        torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]
-                    )
-                path = figures_dir / f"{task.name}_seed{trial.seed}_gmm.png"
-                figures.append(
-                    str(plot_weight_map(trial, np.asarray(weights[0].cpu()), np.asarray(means[0].cpu()), path))
-                )
+            figures += _draw(predictor, trial, samples, outcome.success, figures_dir)
     if not records:
         raise ValueError("no trials to evaluate")
     return _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)
+
+
+def _draw(predictor: GoalPredictor, trial: Trial, samples: np.ndarray, success: bool, folder: Path) -> list[str]:
+    """PNGs of one trial: its K samples, and the Dense GMM's weights where the predictor has one."""
+    stem = folder / f"{trial.task.name}_seed{trial.seed}"
+    title = f"{trial.task.name}, seed {trial.seed}"
+    verdict = " - executed sample succeeded" if success else " - executed sample failed"
+    paths = [
+        plot_goal_samples(
+            f"{stem}_samples.png",
+            trial.scene_points,
+            trial.object_points,
+            samples,
+            valid_goals=[trial.goal_points()],
+            goals_label="ground-truth goal",
+            title=f"{title}: {len(samples)} sampled goals{verdict}",
+        )
+    ]
+    if has_placement_distribution(predictor):
+        with torch.inference_mode():
+            weights, means = predictor.placement_distribution(
+                torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]
+            )
+        paths.append(
+            plot_weight_map(
+                f"{stem}_gmm.png",
+                trial.scene_points,
+                np.asarray(weights[0].cpu()),
+                np.asarray(means[0].cpu()),
+                goal_centroids=trial.goal_points().mean(0),
+                centroids_label="ground-truth goal centroid",
+                title=f"{title}: Dense GMM over the scene",
+            )
+        )
+    return [str(path) for path in paths]
 
 
 def _report(task, split: str, records: list[dict], num_samples: int, figures: list[str], seconds: float) -> dict:
@@ -185,25 +195,3 @@ def _report(task, split: str, records: list[dict], num_samples: int, figures: li
         report["coverage_threshold_mm"] = task.coverage_threshold * 1000
     return report
 
-
-def machine_info() -> dict:
-    """What the timings were measured on (the load average says how busy the machine was)."""
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "load_average_1min": os.getloadavg()[0],
-        "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(),
-        "pybullet_api": pybullet.getAPIVersion(),
-    }
-
-
-def write_report(report: dict, path: Path) -> Path:
-    """Write the report atomically: a crash never leaves a half-written JSON behind."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
-    partial.write_text(json.dumps(report, indent=2))
-    os.replace(partial, path)
-    return path

@@ -10,7 +10,12 @@ import numpy as np
 import pybullet as pb
 import torch
 
-from lerobot_taxdpd.geometry import axis_angle_to_matrix, matrix_to_quaternion_xyzw, pose_to_matrix, rotation_angle
+from lerobot_taxdpd.maths.geometry import (
+    axis_angle_to_matrix,
+    matrix_to_quaternion_xyzw,
+    pose_to_matrix,
+    rotation_angle,
+)
 
 
 def body_pose(client: int, body: int) -> np.ndarray:

@@ -3,8 +3,8 @@
 The harness needs only `sample_goals`; a predictor that answers with poses alone (an SE(3) baseline) is
 wrapped by `as_goal_predictor`, which moves the object cloud by each pose. The harness turns each sampled
 goal cloud into a pose with RANSAC-SVD itself (as the robot would, and as the lerobot-eval env does), so
-the pose it executes and the cloud it scores are always the same prediction. A predictor may also offer `placement_distribution` (TAX-DPD's
-Dense GMM), which the harness then plots.
+the pose it executes and the cloud it scores are always the same prediction. A predictor may also offer
+`placement_distribution` (TAX-DPD's Dense GMM), which the harness then plots.
 
 `OraclePredictor` is the benchmark's own reference: it answers with the ground truth of the trials it
 was built from, optionally off by a rigid error of fixed size. It calibrates the success checks
@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.geometry import transform_points
+from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.sim.poses import perturbation, transform
 from lerobot_taxdpd.sim.trials import Trial
 
@@ -49,7 +49,9 @@ class PoseGoalPredictor:
 
     def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor:
         object_points = torch.as_tensor(object_points, dtype=torch.float32)
-        poses = torch.as_tensor(self.predictor.predict_poses(object_points, scene_points, num_samples), dtype=torch.float32)
+        poses = torch.as_tensor(
+            self.predictor.predict_poses(object_points, scene_points, num_samples), dtype=torch.float32
+        )
         expected = (object_points.shape[0], num_samples, 4, 4)
         if tuple(poses.shape) != expected:
             name = type(self.predictor).__name__

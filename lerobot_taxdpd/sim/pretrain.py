@@ -3,46 +3,32 @@
     python -m lerobot_taxdpd.sim pretrain --task insert_waterproof                 # results/pretrain/<task>
     python -m lerobot_taxdpd.sim pretrain --task mug_easyrack --ship lerobot_taxdpd/pretrained
 
-Steps: scripted demonstrations of the training geometry (`generate`), `lerobot-train` with the CPU recipe
-of `configs/taxdpd_cpu.json`, the evaluation harness on held-out geometry, then the checkpoint with its
-measured metrics (task, training command and budget, held-out success and errors) saved as a shipped
-predictor when `--ship` names a folder. Each step that already finished is reused on a rerun; a checkpoint
-is reused only by the training command that made it.
+Steps: scripted demonstrations of the training geometry (`generate`), `lerobot-train` with the shipped CPU
+recipe `taxdpd_cpu` (or any recipe name or config file given), the evaluation harness on held-out geometry,
+then the checkpoint with its measured metrics (task, training command and budget, held-out success and
+errors) saved as a shipped predictor when `--ship` names a folder. Each step that already finished is
+reused on a rerun; a checkpoint is reused only by the training command that made it.
 """
 
 from __future__ import annotations
 
 import json
 import shlex
-import subprocess
-import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from safetensors.torch import load_file, save_file
 
+from lerobot_taxdpd.recipes import recipe_path, run, train_command
+from lerobot_taxdpd.reports.benchmarking import write_json
 from lerobot_taxdpd.sim.generate import generate_dataset
-from lerobot_taxdpd.sim.harness import evaluate, write_report
+from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
 
-CPU_RECIPE = Path(__file__).resolve().parents[2] / "configs" / "taxdpd_cpu.json"
+#: The recipe of the shipped goal predictors and of `taxdpd-demo --from-scratch`.
+CPU_RECIPE = "taxdpd_cpu"
 TRAIN_COMMAND_FILE = "train_command.txt"
-
-
-def train_command(
-    dataset: Path, repo_id: str, output_dir: Path, config_path: Path, steps: int | None, overrides: Sequence[str] = ()
-) -> list[str]:
-    """`lerobot-train` on the recipe in `config_path`; `overrides` are extra flags (`--policy.<field>=<value>`, `--seed=<n>`)."""
-    command = [
-        "lerobot-train",
-        f"--config_path={config_path}",
-        f"--dataset.repo_id={repo_id}",
-        f"--dataset.root={dataset}",
-        f"--output_dir={output_dir}",
-    ]
-    return command + ([f"--steps={steps}"] if steps else []) + list(overrides)
 
 
 def _relative(path: Path) -> Path:
@@ -51,13 +37,6 @@ def _relative(path: Path) -> Path:
         return path.resolve().relative_to(Path.cwd())
     except ValueError:
         return path
-
-
-def _lerobot_train(command: list[str]) -> float:
-    """Run LeRobot's own training entry point (what the `lerobot-train` script calls); returns its wall time."""
-    started = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "lerobot.scripts.lerobot_train", *command[1:]], check=True)
-    return time.perf_counter() - started
 
 
 def save_shipped(policy, checkpoint: Path, destination: Path) -> None:
@@ -76,7 +55,7 @@ def pretrain(
     *,
     episodes: int,
     steps: int | None,
-    config_path: Path,
+    recipe: str | Path,
     trials: int,
     num_samples: int,
     ship: Path | None,
@@ -85,23 +64,25 @@ def pretrain(
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
-    `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
-    demonstrations; it is generated only if it does not exist yet.
+    `recipe` is a shipped recipe name or a config file; `overrides` are extra lerobot-train flags
+    (`--policy.<field>=<value>`, `--seed=<n>`). `dataset` (default `<output>/data`) lets several runs, e.g.
+    the ablations of one task, share one set of demonstrations; it is generated only if it does not exist yet.
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
     task = get_task(task_name)
-    config_path = Path(config_path)
-    if not config_path.is_file():
-        raise FileNotFoundError(f"--config: {config_path} does not exist")
+    config_path = recipe_path(recipe)
     output = Path(output)
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
     generate_command = f"python -m lerobot_taxdpd.sim generate --task {task.name} --episodes {episodes} --split train"
     if not (dataset / "meta" / "info.json").is_file():
         print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
-        generate_dataset(task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command)
-    command = train_command(_relative(dataset), repo_id, _relative(run_dir), _relative(config_path), steps, overrides)
+        generate_dataset(
+            task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command
+        )
+    flags = [*([f"--steps={steps}"] if steps else []), *overrides]
+    command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
     recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with
     train_seconds = None
@@ -115,7 +96,7 @@ def pretrain(
         print(f"[2/4] {shlex.join(command)}", flush=True)
         output.mkdir(parents=True, exist_ok=True)
         recorded.write_text(shlex.join(command))
-        train_seconds = _lerobot_train(command)
+        train_seconds = run(command)
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
     if destination is not None:  # evaluate exactly what ships (half-precision weights)
@@ -125,7 +106,7 @@ def pretrain(
     held_out = (make_trial(task, seed, "test") for seed in range(trials))
     report = evaluate(policy, held_out, num_samples, figures_dir=output / "figures", total=trials)
     report["predictor"] = str(destination or checkpoint)
-    write_report(report, output / f"{task.name}_eval.json")
+    write_json(output / f"{task.name}_eval.json", report)
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     metrics = {
         "task": task.name,
@@ -137,7 +118,11 @@ def pretrain(
         "train_seconds": train_seconds,
         "evaluation": f"{trials} held-out trials (test geometry, seeds 0..{trials - 1}), K = {num_samples}",
         "license": "apache-2.0",
-        **{key: value for key, value in report.items() if key in _REPORTED or key.startswith(("coverage@", "precision@"))},
+        **{
+            key: value
+            for key, value in report.items()
+            if key in _REPORTED or key.startswith(("coverage@", "precision@"))
+        },
     }
     policy.metrics = metrics
     print(f"[4/4] {task.name}: success {report['success']['success_rate']:.1%} on held-out geometry", flush=True)

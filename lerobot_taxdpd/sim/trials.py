@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_taxdpd.geometry import farthest_point_indices, transform_points
+from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 from lerobot_taxdpd.sim.cameras import jitter_cameras, render_segmented_clouds
 from lerobot_taxdpd.sim.controller import penetration, sweep_to_goal
 from lerobot_taxdpd.sim.poses import body_pose, rotation_angle_deg, set_body_pose

@@ -14,7 +14,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS
 from lerobot_taxdpd.sim.cloth.datasets import DATASET_KINDS
 from lerobot_taxdpd.sim.cloth.scene import SPLITS
 
@@ -28,26 +28,42 @@ def build_parser() -> argparse.ArgumentParser:
     generate = verbs.add_parser("generate", help="write expert demonstrations as LeRobot datasets")
     _common(generate, default_split="train")
     generate.add_argument("--episodes", type=int, required=True, help="scene seeds tried (failed demos are skipped)")
-    generate.add_argument("--repo-id", required=True, help="dataset repo id, e.g. me/cloth_hang (suffixed _goal/_policy for both)")
-    generate.add_argument("--root", type=Path, required=True, help="output folder (for both: ROOT/goal and ROOT/policy)")
+    generate.add_argument(
+        "--repo-id", required=True, help="dataset repo id, e.g. me/cloth_hang (suffixed _goal/_policy for both)"
+    )
+    generate.add_argument(
+        "--root", type=Path, required=True, help="output folder (for both: ROOT/goal and ROOT/policy)"
+    )
     generate.add_argument("--dataset", choices=DATASET_KINDS, default="both", help="which dataset(s) to write")
     generate.add_argument("--views", type=int, default=4, help="point samplings (frames) per goal-prediction episode")
-    generate.add_argument("--num-object-points", type=int, default=DEFAULT_POINT_COUNTS[TASK][0])
-    generate.add_argument("--num-scene-points", type=int, default=DEFAULT_POINT_COUNTS[TASK][1])
+    generate.add_argument(
+        "--object-cloud-size", type=int, default=DEFAULT_POINT_COUNTS[TASK][0], help="cloth points stored per frame"
+    )
+    generate.add_argument(
+        "--scene-cloud-size", type=int, default=DEFAULT_POINT_COUNTS[TASK][1], help="hanger points stored per frame"
+    )
     generate.add_argument("--overwrite", action="store_true", help="replace an existing dataset (only once complete)")
 
     evaluate = verbs.add_parser("eval", help="evaluate goal predictor and gc_dp3 on held-out scenes")
     _common(evaluate, default_split="test")
     evaluate.add_argument("--trials", type=int, default=100)
     evaluate.add_argument("--policy.path", dest="policy_path", help="gc_dp3 checkpoint (pretrained_model folder)")
-    evaluate.add_argument("--goal-policy.path", dest="goal_policy_path", help="taxdpd goal predictor: shipped name, checkpoint folder or Hub id")
+    evaluate.add_argument(
+        "--goal-policy.path",
+        dest="goal_policy_path",
+        help="taxdpd goal predictor: shipped name, checkpoint folder or Hub id",
+    )
     evaluate.add_argument("--ground-truth-goals", action="store_true", help="also run gc_dp3 on a ground-truth goal")
-    evaluate.add_argument("--num-samples", dest="num_goal_samples", type=int, default=10, help="K goals sampled per scene")
+    evaluate.add_argument(
+        "--num-samples", dest="num_goal_samples", type=int, default=10, help="K goals sampled per scene"
+    )
     evaluate.add_argument("--goal-threshold", type=float, default=0.5, help="RMSE (m) for coverage@K / precision@K")
     evaluate.add_argument("--plots", type=int, default=5, help="PNGs for the first N trials")
     evaluate.add_argument("--output", type=Path, default=Path("outputs/eval/cloth_hang"))
     evaluate.add_argument("--device", default="cpu")
-    evaluate.add_argument("--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang")
+    evaluate.add_argument(
+        "--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang"
+    )
     return parser
 
 
@@ -75,8 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             repo_id=args.repo_id,
             kind=args.dataset,
             views=args.views,
-            num_object_points=args.num_object_points,
-            num_scene_points=args.num_scene_points,
+            object_cloud_size=args.object_cloud_size,
+            scene_cloud_size=args.scene_cloud_size,
             workers=args.workers,
             overwrite=args.overwrite,
             command="python -m lerobot_taxdpd.sim " + shlex.join(argv),

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_taxdpd.dataset_writer import DatasetCardInfo, DatasetWriter
-from lerobot_taxdpd.schema import (
+from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
+from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
     DONE_KEY,
     GOAL_CLOUD_KEY,
@@ -60,15 +60,15 @@ class DemoRequest:
     split: str
     seed: int
     views: int
-    num_object_points: int
-    num_scene_points: int
+    object_cloud_size: int
+    scene_cloud_size: int
     want_goal: bool
     want_policy: bool
 
 
 def simulate_demo(request: DemoRequest) -> Demo:
     """One expert demonstration of scene `seed`, turned into frames of the requested datasets."""
-    env = ClothHangEnv(request.split, request.num_object_points, request.num_scene_points)
+    env = ClothHangEnv(request.split, request.object_cloud_size, request.scene_cloud_size)
     try:
         scene = sample_scene(request.split, request.seed, env.ranges)
         hole, hanger = demo_target(scene)
@@ -103,11 +103,11 @@ def _goal_frames(env: ClothHangEnv, start: np.ndarray, final: np.ndarray, reques
     rng = np.random.default_rng([SPLITS.index(request.split), request.seed, 3])
     frames = []
     for view in range(request.views):
-        samples = sample_surface(env.mesh, request.num_object_points, rng)
+        samples = sample_surface(env.mesh, request.object_cloud_size, rng)
         frames.append(
             placement_frame(
                 samples.points(start, env.mesh.faces),
-                hanger_surface_points(env.scene.hangers, request.num_scene_points, rng),
+                hanger_surface_points(env.scene.hangers, request.scene_cloud_size, rng),
                 samples.points(final, env.mesh.faces),
                 source=f"cloth_hang {request.split} seed {request.seed} view {view}",
             )
@@ -134,8 +134,8 @@ def generate(
     repo_id: str,
     kind: str = "both",
     views: int = 4,
-    num_object_points: int = 512,
-    num_scene_points: int = 512,
+    object_cloud_size: int = 512,
+    scene_cloud_size: int = 512,
     workers: int = 1,
     overwrite: bool = False,
     command: str | None = None,
@@ -158,20 +158,20 @@ def generate(
         details={"split": split, "scene seeds": f"{seed}..{seed + episodes - 1}"},
     )
     requests = [
-        DemoRequest(split, s, views, num_object_points, num_scene_points, want_goal, want_policy)
+        DemoRequest(split, s, views, object_cloud_size, scene_cloud_size, want_goal, want_policy)
         for s in range(seed, seed + episodes)
     ]
     seconds, successes = [], 0
     with ExitStack() as stack:
         writers = {}
         if want_goal:
-            features = goal_prediction_features(num_object_points, num_scene_points, with_transform=False)
+            features = goal_prediction_features(object_cloud_size, scene_cloud_size, with_transform=False)
             writers["goal"] = DatasetWriter(
                 *paths["goal"], features, fps=GOAL_DATASET_FPS, card=replace(card, description=_GOAL_DESCRIPTION),
                 overwrite=overwrite,
             )
         if want_policy:
-            features = cloth_policy_features(num_object_points, num_scene_points)
+            features = cloth_policy_features(object_cloud_size, scene_cloud_size)
             writers["policy"] = DatasetWriter(
                 *paths["policy"], features, fps=round(1.0 / SimSettings().control_period),
                 card=replace(card, description=_POLICY_DESCRIPTION), overwrite=overwrite,

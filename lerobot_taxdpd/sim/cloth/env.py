@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.sim.cloth import checks
 from lerobot_taxdpd.sim.cloth.mesh import ClothMesh, SurfaceSamples, build_cloth_mesh, sample_surface, write_obj
 from lerobot_taxdpd.sim.cloth.scene import (
@@ -82,23 +82,23 @@ class ClothHangEnv(gym.Env):
     def __init__(
         self,
         split: str = "train",
-        num_object_points: int = DEFAULT_POINT_COUNTS["cloth_hang"][0],
-        num_scene_points: int = DEFAULT_POINT_COUNTS["cloth_hang"][1],
+        object_cloud_size: int = DEFAULT_POINT_COUNTS["cloth_hang"][0],
+        scene_cloud_size: int = DEFAULT_POINT_COUNTS["cloth_hang"][1],
         settings: SimSettings | None = None,
         ranges: SceneRanges | None = None,
     ) -> None:
-        for name, value in (("num_object_points", num_object_points), ("num_scene_points", num_scene_points)):
+        for name, value in (("object_cloud_size", object_cloud_size), ("scene_cloud_size", scene_cloud_size)):
             if value < 3:
                 raise ValueError(f"{name}: need at least 3 points, got {value}")
         self.split = split
-        self.num_object_points = num_object_points
-        self.num_scene_points = num_scene_points
+        self.object_cloud_size = object_cloud_size
+        self.scene_cloud_size = scene_cloud_size
         self.settings = settings or SimSettings()
         self.ranges = ranges or SceneRanges()
         self.observation_space = gym.spaces.Dict(
             {
-                OBJECT_KEY: gym.spaces.Box(-np.inf, np.inf, (num_object_points, 3), np.float32),
-                SCENE_KEY: gym.spaces.Box(-np.inf, np.inf, (num_scene_points, 3), np.float32),
+                OBJECT_KEY: gym.spaces.Box(-np.inf, np.inf, (object_cloud_size, 3), np.float32),
+                SCENE_KEY: gym.spaces.Box(-np.inf, np.inf, (scene_cloud_size, 3), np.float32),
                 STATE_KEY: gym.spaces.Box(-np.inf, np.inf, (12,), np.float32),
             }
         )
@@ -157,7 +157,8 @@ class ClothHangEnv(gym.Env):
     def release(self) -> dict[str, Any]:
         """Let go of the cloth, let it settle and check success (DEDO: 500 steps after release)."""
         vertices = self.cloth_vertices()
-        pre = checks.pre_release_matrix(vertices, self.mesh.hole_loops, self.scene.hangers, self.settings.success_radius)
+        radius = self.settings.success_radius
+        pre = checks.pre_release_matrix(vertices, self.mesh.hole_loops, self.scene.hangers, radius)
         for anchor in self._anchors:
             p.removeConstraint(anchor, physicsClientId=self._client)
         self._anchors = []
@@ -249,8 +250,8 @@ class ClothHangEnv(gym.Env):
             self._grippers.append(body)
             self._anchors.append(p.createSoftBodyAnchor(self._cloth, vertex, body, -1, physicsClientId=cid))
         rng = np.random.default_rng([SPLITS.index(scene.split), scene.seed, 1])
-        self.samples = sample_surface(self.mesh, self.num_object_points, rng)
-        self.hanger_points = hanger_surface_points(scene.hangers, self.num_scene_points, rng)
+        self.samples = sample_surface(self.mesh, self.object_cloud_size, rng)
+        self.hanger_points = hanger_surface_points(scene.hangers, self.scene_cloud_size, rng)
         self._velocity = np.zeros(6)
         self._steps = 0
         self._released = False

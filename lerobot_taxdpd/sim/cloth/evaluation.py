@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_taxdpd.metrics import coverage_precision, success_summary
-from lerobot_taxdpd.schema import GOAL_CLOUD_KEY
+from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
+from lerobot_taxdpd.maths.metrics import coverage_precision, success_summary
+from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
 from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
-from lerobot_taxdpd.sim.harness import machine_info, write_report
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ def load_gc_dp3(path: str, device: str):
     """The policy and its saved processors from a checkpoint folder (`.../pretrained_model`)."""
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_taxdpd.modeling_gc_dp3 import GcDp3Policy
+    from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
     policy = GcDp3Policy.from_pretrained(path)
     policy.config.device = device
@@ -211,7 +211,9 @@ def evaluate(
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
     if policy_path and not (Path(policy_path) / "config.json").is_file():
-        raise FileNotFoundError(f"--policy.path: {policy_path} has no config.json (expected a checkpoint's pretrained_model folder)")
+        raise FileNotFoundError(
+            f"--policy.path: {policy_path} has no config.json (expected a checkpoint's pretrained_model folder)"
+        )
     if goal_policy_path:
         from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
 
@@ -222,22 +224,32 @@ def evaluate(
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     config = {
-        "split": split, "seeds": f"{seed}..{seed + trials - 1}", "policy_path": policy_path,
-        "goal_policy_path": goal_policy_path, "num_goal_samples": num_goal_samples,
-        "goal_threshold_m": goal_threshold, "device": device,
+        "split": split,
+        "seeds": f"{seed}..{seed + trials - 1}",
+        "policy_path": policy_path,
+        "goal_policy_path": goal_policy_path,
+        "num_goal_samples": num_goal_samples,
+        "goal_threshold_m": goal_threshold,
+        "device": device,
         "torch_threads_per_trial": 1 if workers > 1 else torch.get_num_threads(),
     }
     requests = [
         TrialRequest(
-            split=split, seed=s, policy_path=policy_path, goal_policy_path=goal_policy_path,
-            ground_truth_goals=ground_truth_goals, num_goal_samples=num_goal_samples, goal_threshold=goal_threshold,
-            plot_dir=str(output / "plots") if i < plots else None, device=device,
+            split=split,
+            seed=s,
+            policy_path=policy_path,
+            goal_policy_path=goal_policy_path,
+            ground_truth_goals=ground_truth_goals,
+            num_goal_samples=num_goal_samples,
+            goal_threshold=goal_threshold,
+            plot_dir=str(output / "plots") if i < plots else None,
+            device=device,
             torch_threads=1 if workers > 1 else None,
         )
         for i, s in enumerate(range(seed, seed + trials))
     ]
     summary = summarise(list(run_trials(requests, workers)), config, workers)
-    write_report(summary, output / "eval_cloth_hang.json")
+    write_json(output / "eval_cloth_hang.json", summary)
     return summary
 
 
@@ -253,13 +265,17 @@ def ship_goal_predictor(summary: dict, destination: Path) -> Path:
     checkpoint = Path(config["goal_policy_path"])
     train_config = checkpoint / "train_config.json"
     trained = json.loads(train_config.read_text()) if train_config.is_file() else {}
-    rates = {name: {k: summary[name][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
-             for name in ("predicted_goal", "ground_truth_goal") if name in summary}
+    dataset = trained.get("dataset", {})
+    rates = {
+        name: {k: summary[name][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
+        for name in ("predicted_goal", "ground_truth_goal")
+        if name in summary
+    }
     policy = load_goal_predictor(checkpoint)
     policy.metrics = {
         "task": "cloth_hang",
         "description": TASK_DESCRIPTION,
-        "data": f"dataset {trained.get('dataset', {}).get('repo_id', '?')} ({trained.get('dataset', {}).get('root', '?')})",
+        "data": f"dataset {dataset.get('repo_id', '?')} ({dataset.get('root', '?')})",
         "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run)",
         "training_steps": trained.get("steps"),
         "batch_size": trained.get("batch_size"),

@@ -11,7 +11,8 @@ slow integral of the remaining error; and it damps the swing as a crane operator
 grippers towards the side the hole has swung to.
 
 Phases: approach (turn and bring the hole to an entry point on the peg's axis, in front of its tip),
-thread (slide the hole along the axis to the goal point, pausing before the tip until it is on the axis), hold (keep it there, still damping, until the env lets go).
+thread (slide the hole along the axis to the goal point, pausing before the tip until it is on the axis),
+hold (keep it there, still damping, until the env lets go).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lerobot_taxdpd.geometry import farthest_point_indices
+from lerobot_taxdpd.maths.geometry import farthest_point_indices
 
 MIN_EDGE_INDEX = 3  # hole indices lie in [3, n - 4]: at least two rows of faces around every hole
 MIN_HOLE_GAP = 3  # nodes between two holes

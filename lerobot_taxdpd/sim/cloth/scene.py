@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lerobot_taxdpd.geometry import farthest_point_indices
+from lerobot_taxdpd.maths.geometry import farthest_point_indices
 from lerobot_taxdpd.sim.cloth.mesh import Hole, sample_holes
 
 SPLITS = ("train", "test")

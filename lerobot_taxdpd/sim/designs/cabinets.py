@@ -89,7 +89,7 @@ def cabinet_design(params: dict[str, float], can: dict[str, float], rng: np.rand
     heights = rng.integers(1, 3, size=num_stacks)
     heights[rng.integers(num_stacks)] = 1
     stacks, supports = [], []
-    for index, (spot, count) in enumerate(zip(stack_spots, heights)):
+    for index, (spot, count) in enumerate(zip(stack_spots, heights, strict=True)):
         base = np.array([xs[spot], row_y, t])
         stacks.append((base, int(count)))
         for level in range(int(count)):

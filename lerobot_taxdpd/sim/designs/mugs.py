@@ -66,7 +66,7 @@ def mug_design(params: dict[str, float]) -> MugDesign:
     semi_x, semi_z = hole_w + t / 2 + b / 2, hole_h / 2 + b / 2
     phis = np.linspace(0.0, np.pi, HANDLE_SEGMENTS + 1)
     centreline = np.stack([x0 + semi_x * np.sin(phis), np.zeros_like(phis), z_c + semi_z * np.cos(phis)], -1)
-    for a, c in zip(centreline[:-1], centreline[1:]):
+    for a, c in zip(centreline[:-1], centreline[1:], strict=True):
         chord = c - a
         length = float(np.linalg.norm(chord)) + 0.6 * b
         pitch = -np.arctan2(chord[2], chord[0])

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_taxdpd.schema import DEFAULT_POINT_COUNTS
+from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS
 from lerobot_taxdpd.sim.cameras import CameraSpec
 
 

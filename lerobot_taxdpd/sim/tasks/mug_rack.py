@@ -38,7 +38,7 @@ class MugScene:
     def world_pegs(self) -> list[tuple[Peg, np.ndarray, np.ndarray]]:
         """(peg, world start, world tip) of every peg in the scene."""
         pegs = []
-        for rack, pose in zip(self.racks, self.rack_poses):
+        for rack, pose in zip(self.racks, self.rack_poses, strict=True):
             for peg in rack.pegs:
                 pegs.append((peg, pose[:3, :3] @ peg.start + pose[:3, 3], pose[:3, :3] @ peg.tip + pose[:3, 3]))
         return pegs
@@ -84,7 +84,7 @@ class MugRackTask(PlacementTask):
                 color=(0.45, 0.3, 0.2, 1.0),
                 friction=0.8,
             )
-            for rack, pose in zip(scene.racks, scene.rack_poses)
+            for rack, pose in zip(scene.racks, scene.rack_poses, strict=True)
         )
         mug = create_body(
             client,
@@ -154,7 +154,7 @@ class MugRackTask(PlacementTask):
     def check_result(self, client: int, built: BuiltScene, scene: MugScene) -> str | None:
         if touching(client, built.object_id, [built.table_id]):
             return "fell to the table"
-        for rack_id, rack, pose in zip(built.parent_ids, scene.racks, scene.rack_poses):
+        for rack_id, rack, pose in zip(built.parent_ids, scene.racks, scene.rack_poses, strict=True):
             # The part of each peg outside the pole, in world coordinates.
             pegs = [
                 (

@@ -1,0 +1,1 @@
+"""Geometry and the metrics every report uses (numpy and torch, no LeRobot)."""

@@ -1,0 +1,298 @@
+"""Goal-conditioned 3D Diffusion Policy (`gc_dp3`): DP3 whose point input also holds the goal cloud.
+
+Per observation step the clouds [cloth, hanger, goal] are concatenated, each point tagged with its
+block's one-hot segment, and encoded by DP3's compact encoder; a small MLP encodes the end-effector
+state; both features of the last `n_obs_steps` steps condition a 1-D U-Net through FiLM. The U-Net
+denoises a chunk of `horizon` normalised actions with DDIM (sample prediction, few steps).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from diffusers.schedulers.scheduling_ddim import DDIMScheduler
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from torch import Tensor, nn
+
+from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
+from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
+
+
+# --------------------------------------------------------------------------------------------- encoders
+class PointCloudEncoder(nn.Module):
+    """DP3's encoder: a per-point MLP with LayerNorm, max-pooled over points, then a projection."""
+
+    def __init__(self, in_channels: int, hidden_dims: tuple[int, ...], out_dim: int) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        for dim in hidden_dims:
+            layers += [nn.Linear(in_channels, dim), nn.LayerNorm(dim), nn.ReLU()]
+            in_channels = dim
+        self.point_mlp = nn.Sequential(*layers)
+        self.projection = nn.Sequential(nn.Linear(in_channels, out_dim), nn.LayerNorm(out_dim))
+
+    def forward(self, points: Tensor) -> Tensor:
+        """(B, N, C) -> (B, out_dim)."""
+        return self.projection(self.point_mlp(points).max(dim=1).values)
+
+
+def mlp(in_dim: int, dims: tuple[int, ...]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, dim in enumerate(dims):
+        layers.append(nn.Linear(in_dim, dim))
+        if i < len(dims) - 1:
+            layers.append(nn.ReLU())
+        in_dim = dim
+    return nn.Sequential(*layers)
+
+
+# ------------------------------------------------------------------------------------------ 1-D U-Net
+class SinusoidalEmbedding(nn.Module):
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.dim = dim
+
+    def forward(self, t: Tensor) -> Tensor:
+        half = self.dim // 2
+        freqs = torch.exp(-math.log(10_000) * torch.arange(half, device=t.device) / max(half - 1, 1))
+        angles = t.float()[:, None] * freqs[None]
+        return torch.cat([angles.sin(), angles.cos()], dim=-1)
+
+
+class ConvBlock(nn.Module):
+    """Conv1d -> GroupNorm -> Mish."""
+
+    def __init__(self, in_channels: int, out_channels: int, kernel_size: int, n_groups: int) -> None:
+        super().__init__()
+        self.block = nn.Sequential(
+            nn.Conv1d(in_channels, out_channels, kernel_size, padding=kernel_size // 2),
+            nn.GroupNorm(n_groups, out_channels),
+            nn.Mish(),
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.block(x)
+
+
+class FiLMResidualBlock(nn.Module):
+    """Two conv blocks; the conditioning scales and shifts the features between them (FiLM)."""
+
+    def __init__(self, in_channels: int, out_channels: int, cond_dim: int, kernel_size: int, n_groups: int) -> None:
+        super().__init__()
+        self.first = ConvBlock(in_channels, out_channels, kernel_size, n_groups)
+        self.second = ConvBlock(out_channels, out_channels, kernel_size, n_groups)
+        self.film = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * out_channels))
+        self.skip = nn.Conv1d(in_channels, out_channels, 1) if in_channels != out_channels else nn.Identity()
+
+    def forward(self, x: Tensor, cond: Tensor) -> Tensor:
+        scale, shift = self.film(cond).unsqueeze(-1).chunk(2, dim=1)
+        h = self.first(x) * scale + shift
+        return self.second(h) + self.skip(x)
+
+
+class ConditionalUnet1d(nn.Module):
+    """1-D U-Net over the action chunk's time axis, conditioned on timestep and observation features."""
+
+    def __init__(self, action_dim: int, global_cond_dim: int, config: GcDp3Config) -> None:
+        super().__init__()
+        k, g, e = config.kernel_size, config.n_groups, config.diffusion_step_embed_dim
+        self.timestep_embedding = nn.Sequential(
+            SinusoidalEmbedding(e), nn.Linear(e, 4 * e), nn.Mish(), nn.Linear(4 * e, e)
+        )
+        cond_dim = e + global_cond_dim
+        dims = (action_dim, *config.down_dims)
+        levels = list(zip(dims[:-1], dims[1:], strict=True))
+        self.down = nn.ModuleList()
+        for i, (c_in, c_out) in enumerate(levels):
+            last = i == len(levels) - 1
+            self.down.append(
+                nn.ModuleList(
+                    [
+                        FiLMResidualBlock(c_in, c_out, cond_dim, k, g),
+                        FiLMResidualBlock(c_out, c_out, cond_dim, k, g),
+                        nn.Identity() if last else nn.Conv1d(c_out, c_out, 3, stride=2, padding=1),
+                    ]
+                )
+            )
+        deepest = config.down_dims[-1]
+        self.middle = nn.ModuleList(
+            [FiLMResidualBlock(deepest, deepest, cond_dim, k, g), FiLMResidualBlock(deepest, deepest, cond_dim, k, g)]
+        )
+        self.up = nn.ModuleList()
+        for c_in, c_out in reversed(levels[1:]):
+            self.up.append(
+                nn.ModuleList(
+                    [
+                        FiLMResidualBlock(2 * c_out, c_in, cond_dim, k, g),
+                        FiLMResidualBlock(c_in, c_in, cond_dim, k, g),
+                        nn.ConvTranspose1d(c_in, c_in, 4, stride=2, padding=1),
+                    ]
+                )
+            )
+        first = config.down_dims[0]
+        self.head = nn.Sequential(ConvBlock(first, first, k, g), nn.Conv1d(first, action_dim, 1))
+
+    def forward(self, x: Tensor, timestep: Tensor, global_cond: Tensor) -> Tensor:
+        """x (B, T, A), timestep (B,), global_cond (B, D) -> (B, T, A)."""
+        cond = torch.cat([self.timestep_embedding(timestep), global_cond], dim=-1)
+        h = x.transpose(1, 2)
+        skips = []
+        for block_a, block_b, downsample in self.down:
+            h = block_b(block_a(h, cond), cond)
+            skips.append(h)
+            h = downsample(h)
+        for block in self.middle:
+            h = block(h, cond)
+        for block_a, block_b, upsample in self.up:
+            h = torch.cat([h, skips.pop()], dim=1)
+            h = upsample(block_b(block_a(h, cond), cond))
+        return self.head(h).transpose(1, 2)
+
+
+# -------------------------------------------------------------------------------------------- the net
+class GcDp3Model(nn.Module):
+    """Observation encoders, denoiser and noise schedule; knows nothing of queues or normalisation."""
+
+    def __init__(self, config: GcDp3Config) -> None:
+        super().__init__()
+        self.config = config
+        num_blocks = len(config.cloud_keys)
+        self.point_encoder = PointCloudEncoder(3 + num_blocks, config.point_encoder_dims, config.point_feature_dim)
+        state_dim = config.input_features[STATE_KEY].shape[0]
+        self.state_encoder = mlp(state_dim, config.state_encoder_dims)
+        step_dim = config.point_feature_dim + config.state_encoder_dims[-1]
+        self.action_dim = config.output_features[ACTION_KEY].shape[0]
+        self.unet = ConditionalUnet1d(self.action_dim, step_dim * config.n_obs_steps, config)
+        self.scheduler = DDIMScheduler(
+            num_train_timesteps=config.num_train_timesteps,
+            beta_schedule=config.beta_schedule,
+            clip_sample=config.clip_sample,
+            clip_sample_range=config.clip_sample_range,
+            prediction_type=config.prediction_type,
+            set_alpha_to_one=True,
+            steps_offset=0,
+        )
+
+    def segmented_cloud(self, batch: dict[str, Tensor]) -> Tensor:
+        """Concatenate the clouds (..., N_k, 3) into (..., sum N_k, 3 + K), each row tagged with its block."""
+        blocks = []
+        for index, key in enumerate(self.config.cloud_keys):
+            points = batch[key][..., : self.config.points_per_cloud, :]
+            tag = F.one_hot(torch.tensor(index, device=points.device), len(self.config.cloud_keys))
+            blocks.append(torch.cat([points, tag.to(points.dtype).expand(*points.shape[:-1], -1)], dim=-1))
+        return torch.cat(blocks, dim=-2)
+
+    def global_condition(self, batch: dict[str, Tensor]) -> Tensor:
+        """Observation features of the last n_obs_steps steps, flattened: (B, n_obs_steps * step_dim)."""
+        cloud = self.segmented_cloud(batch)  # (B, T, N, C)
+        b, t = cloud.shape[:2]
+        point_features = self.point_encoder(cloud.flatten(0, 1)).reshape(b, t, -1)
+        state_features = self.state_encoder(batch[STATE_KEY])
+        return torch.cat([point_features, state_features], dim=-1).flatten(1)
+
+    def compute_loss(self, batch: dict[str, Tensor]) -> Tensor:
+        actions = batch[ACTION_KEY]
+        cond = self.global_condition(batch)
+        noise = torch.randn_like(actions)
+        steps = torch.randint(0, self.config.num_train_timesteps, (actions.shape[0],), device=actions.device)
+        noisy = self.scheduler.add_noise(actions, noise, steps)
+        prediction = self.unet(noisy, steps, cond)
+        target = actions if self.config.prediction_type == "sample" else noise
+        loss = F.mse_loss(prediction, target, reduction="none")
+        if self.config.do_mask_loss_for_padding and "action_is_pad" in batch:
+            loss = loss * (~batch["action_is_pad"]).unsqueeze(-1)
+        return loss.mean()
+
+    @torch.no_grad()
+    def generate_actions(self, batch: dict[str, Tensor], generator: torch.Generator | None = None) -> Tensor:
+        """Denoise a chunk from Gaussian noise: (B, horizon, action_dim), normalised units."""
+        cond = self.global_condition(batch)
+        sample = torch.randn(
+            cond.shape[0], self.config.horizon, self.action_dim, device=cond.device, dtype=cond.dtype,
+            generator=generator,
+        )
+        self.scheduler.set_timesteps(self.config.num_inference_steps)
+        for t in self.scheduler.timesteps:
+            steps = torch.full((cond.shape[0],), int(t), device=cond.device, dtype=torch.long)
+            output = self.unet(sample, steps, cond)
+            sample = self.scheduler.step(output, t, sample, generator=generator).prev_sample
+        return sample
+
+
+# ------------------------------------------------------------------------------------------ the policy
+class GcDp3Policy(PreTrainedPolicy):
+    """LeRobot policy around `GcDp3Model`: observation queues, action chunking and the optional EMA."""
+
+    config_class = GcDp3Config
+    name = "gc_dp3"
+
+    def __init__(self, config: GcDp3Config, **kwargs) -> None:
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.model = GcDp3Model(config)
+        if config.use_ema:
+            self.ema_model = copy.deepcopy(self.model).requires_grad_(False)
+            self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._queues: dict[str, deque] = {}
+        self.reset()
+
+    @property
+    def inference_model(self) -> GcDp3Model:
+        return self.ema_model if self.config.use_ema else self.model
+
+    def get_optim_params(self):
+        return self.model.parameters()
+
+    def reset(self) -> None:
+        steps = self.config.n_obs_steps
+        self._queues = {key: deque(maxlen=steps) for key in self._observation_keys}
+        self._queues[ACTION_KEY] = deque(maxlen=self.config.n_action_steps)
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, None]:
+        return self.model.compute_loss(batch), None
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None) -> Tensor:
+        """The next `n_action_steps` normalised actions (B, n_action_steps, A) from the queued observations."""
+        self._queue_observation(batch)
+        stacked = {key: torch.stack(list(self._queues[key]), dim=1) for key in self._observation_keys}
+        return self.inference_model.generate_actions(stacked, generator)[:, : self.config.n_action_steps]
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], generator: torch.Generator | None = None) -> Tensor:
+        """One action (B, A) per env step; a new chunk is denoised every `n_action_steps` steps."""
+        if not self._queues[ACTION_KEY]:
+            self._queues[ACTION_KEY].extend(self.predict_action_chunk(batch, generator).transpose(0, 1))
+        else:
+            self._queue_observation(batch)
+        return self._queues[ACTION_KEY].popleft()
+
+    def update(self) -> None:
+        """After each optimiser step: move the EMA weights towards the trained ones (DP3's warm-up decay)."""
+        if not self.config.use_ema:
+            return
+        step = int(self.ema_step)
+        decay = min(self.config.ema_max_decay, max(0.0, 1.0 - (1.0 + step) ** -self.config.ema_power))
+        with torch.no_grad():
+            for ema, param in zip(self.ema_model.parameters(), self.model.parameters(), strict=True):
+                ema.lerp_(param, 1.0 - decay)
+        self.ema_step += 1
+
+    @property
+    def _observation_keys(self) -> tuple[str, ...]:
+        return (*self.config.cloud_keys, STATE_KEY)
+
+    def _queue_observation(self, batch: dict[str, Tensor]) -> None:
+        """Check the observation and push it; other keys (a processed batch carries `action`) are left out."""
+        for key in self._observation_keys:
+            if key not in batch:
+                raise KeyError(f"gc_dp3: observation is missing '{key}' (got {sorted(batch)})")
+            if not torch.isfinite(batch[key]).all():
+                raise ValueError(f"gc_dp3: observation '{key}' contains NaN or infinite values")
+        self._queues = populate_queues(self._queues, {key: batch[key] for key in self._observation_keys})

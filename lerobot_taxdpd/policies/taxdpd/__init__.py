@@ -1,0 +1,1 @@
+"""`--policy.type=taxdpd`: the TAX-DPD goal predictor (Dense GMM + disentangled point-cloud diffusion)."""

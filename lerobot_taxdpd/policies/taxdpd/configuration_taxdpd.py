@@ -1,0 +1,220 @@
+"""Configuration of the TAX-DPD goal predictor (`--policy.type=taxdpd`).
+
+Units: the model works in "model units", metres times `point_scale`. `point_scale` is chosen once, from the
+training data, so that the median object radius equals `object_scale` (the paper's dataset scaling); it is
+stored in config.json so a checkpoint always rescales inputs exactly as it was trained. Lengths below that
+say "model units" are in that space (object radius ~ `object_scale`).
+
+Ablation switches (each row of the paper's ablation tables):
+    disentangled=false                  w/o disentangled point diffusion
+    encoder=mlp                         w/ MLP encodings
+    use_gmm=false                       w/o GMM (diffuse from the scene centroid)
+    use_reconstruction_embedding=false  w/o reconstruction embedding
+    use_rotation_noise=false            w/o rotation noise
+    use_deformation_embedding=false     w/o deformation embedding
+    local_diffusion=se3                 w/ SE(3) diffusion (6-D rotation + translation DDPM)
+A TAX3D-style baseline (one point diffusion in the scene frame, separate object/scene encoders) is
+use_gmm=false disentangled=false use_reconstruction_embedding=false use_deformation_embedding=false.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+from lerobot.optim.optimizers import AdamWConfig
+from lerobot.optim.schedulers import DiffuserSchedulerConfig
+
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+
+ENCODERS = ("pointnet2", "mlp")
+LOCAL_DIFFUSIONS = ("point", "se3")
+SAMPLERS = ("ddim", "ddpm")
+PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
+
+
+def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
+    """Sampling steps must divide the training steps: diffusers' DDIM steps from t to t - T // n, so any other
+    count would pair timesteps inexactly and skip part of the schedule."""
+    valid = [n for n in range(1, num_train_timesteps + 1) if num_train_timesteps % n == 0]
+    if not isinstance(num_inference_steps, int) or num_inference_steps not in valid:
+        raise ValueError(
+            f"num_inference_steps: must divide num_train_timesteps={num_train_timesteps} (one of {valid}), "
+            f"got {num_inference_steps!r}"
+        )
+
+
+@PreTrainedConfig.register_subclass("taxdpd")
+@dataclass
+class TaxDPDConfig(PreTrainedConfig):
+    # ---- inputs / outputs
+    n_obs_steps: int = 1
+    # Points the network sees. Larger clouds are reduced by farthest point sampling: in training with the same
+    # indices for object and goal (correspondence survives), at inference deterministically, with the
+    # predicted motion lifted back to every input point (exact for rigid placements).
+    num_object_points: int = 512
+    num_scene_points: int = 1024
+    # Point clouds must keep one isotropic scale and one origin: never normalise them per axis.
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.IDENTITY,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
+
+    # ---- dataset scaling
+    object_scale: float = 3.0
+    point_scale: float | None = None  # model units per metre; derived from the training data when unset
+
+    # ---- architecture (paper: DiT depth 5, hidden 128, 4 heads; same size for both stages)
+    hidden_dim: int = 128
+    num_blocks: int = 5
+    num_heads: int = 4
+    mlp_ratio: float = 4.0
+    timestep_embed_dim: int = 256
+    encoder: str = "pointnet2"
+    # PointNet++: centroid ratios of the two set-abstraction levels and their ball radii (model units).
+    sa_ratios: tuple[float, float] = (0.2, 0.25)
+    sa_radii: tuple[float, float] = (1.5, 3.0)
+    max_neighbors: int = 64
+
+    # ---- ablation switches (see module docstring)
+    use_gmm: bool = True
+    disentangled: bool = True
+    use_reconstruction_embedding: bool = True
+    use_deformation_embedding: bool = True
+    use_rotation_noise: bool = True
+    local_diffusion: str = "point"
+
+    # ---- global stage: Dense GMM
+    gmm_variance: float = 0.3  # fixed component variance (model units^2)
+    gmm_uniform_weight: float = 0.1  # weight of the NLL under uniform mixing weights (keeps components useful)
+
+    # ---- local stage: disentangled DDPM
+    num_train_timesteps: int = 100
+    beta_start: float = 1e-4  # given for a 1000-step schedule and rescaled to num_train_timesteps
+    beta_end: float = 0.02
+    prediction_type: str = "epsilon"  # what the denoiser outputs: the noise, the clean goal, or v
+    # The clean shape as one rotation (from the frame token) of the initial object plus a per-point residual.
+    rotation_head: bool = False
+    rotation_noise_std_deg: float = 45.0
+    frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
+    sampler: str = "ddim"
+    num_inference_steps: int = 10
+    num_goal_samples: int = 1  # goals sampled per call of `select_action` (the first is returned)
+
+    # ---- training augmentation
+    z_rotation_augmentation: bool = True
+    # The object alone turned about its centroid by a random yaw in +-start_yaw_range and a tilt about a
+    # random horizontal axis up to start_tilt_range (degrees), the goal kept: the start orientation then says
+    # nothing about the goal's, so the network must read it off the object's shape and the scene.
+    start_yaw_range: float = 0.0
+    start_tilt_range: float = 0.0
+    object_occlusion_prob: float = 0.0  # random plane cut of the object (the authors used 0.8)
+    scene_occlusion_prob: float = 0.0  # random ball cut of the scene (the authors used 0.8)
+
+    # ---- pose estimation
+    ransac_threshold: float | None = None  # metres; default 5% of the object's RMS radius
+    ransac_hypotheses: int = 256
+
+    # ---- optimisation (paper: AdamW 1e-4, wd 1e-5, warmup 100, cosine, clip 1.0)
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-5
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_name: str = "cosine"
+    scheduler_warmup_steps: int = 100
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"encoder: must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.local_diffusion not in LOCAL_DIFFUSIONS:
+            raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
+        if self.prediction_type not in PREDICTION_TYPES:
+            raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
+        if self.rotation_head and (self.prediction_type != "sample" or not self.disentangled or self.local_diffusion != "point"):
+            raise ValueError("rotation_head: needs prediction_type='sample' with the disentangled point diffusion")
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler: must be one of {SAMPLERS}, got {self.sampler!r}")
+        if self.local_diffusion == "se3" and not self.disentangled:
+            raise ValueError("local_diffusion='se3' already separates rotation and translation; keep disentangled=true")
+        if self.hidden_dim % self.num_heads:
+            raise ValueError(f"hidden_dim ({self.hidden_dim}) must be divisible by num_heads ({self.num_heads})")
+        check_inference_steps(self.num_inference_steps, self.num_train_timesteps)
+        if self.point_scale is not None and not self.point_scale > 0:
+            raise ValueError(f"point_scale: must be positive, got {self.point_scale}")
+        for mode_name, mode in self.normalization_mapping.items():
+            if mode_name in ("STATE", "ACTION") and mode is not NormalizationMode.IDENTITY:
+                raise ValueError(
+                    f"normalization_mapping[{mode_name!r}] must be IDENTITY: taxdpd scales point clouds "
+                    "isotropically itself (per-axis normalisation would distort the geometry)"
+                )
+
+    @classmethod
+    def for_point_clouds(cls, num_object_points: int, num_scene_points: int, **overrides) -> TaxDPDConfig:
+        """A config with the dataset schema's features, for building a policy outside `lerobot-train`."""
+        return cls(
+            input_features={
+                OBJECT_KEY: PolicyFeature(FeatureType.STATE, (num_object_points, 3)),
+                SCENE_KEY: PolicyFeature(FeatureType.STATE, (num_scene_points, 3)),
+            },
+            output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (num_object_points, 3))},
+            num_object_points=num_object_points,
+            num_scene_points=num_scene_points,
+            **overrides,
+        )
+
+    # ---- LeRobot hooks
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
+
+    def validate_features(self) -> None:
+        for key in (OBJECT_KEY, SCENE_KEY):
+            if key not in self.input_features:
+                raise ValueError(
+                    f"taxdpd needs the input feature '{key}' (an (N, 3) point cloud); dataset features are "
+                    f"{sorted(self.input_features)}"
+                )
+            shape = tuple(self.input_features[key].shape)
+            if len(shape) != 2 or shape[1] != 3:
+                raise ValueError(f"input feature '{key}': expected shape (N, 3), got {shape}")
+        if ACTION_KEY not in self.output_features:
+            raise ValueError(f"taxdpd needs the output feature '{ACTION_KEY}' (the goal cloud)")
+        action_shape = tuple(self.output_features[ACTION_KEY].shape)
+        object_shape = tuple(self.input_features[OBJECT_KEY].shape)
+        if action_shape != object_shape:
+            raise ValueError(
+                f"'{ACTION_KEY}' {action_shape} and '{OBJECT_KEY}' {object_shape} must have the same shape: "
+                "row i of the goal cloud is where point i of the object goes"
+            )
+        for key, feature in self.input_features.items():
+            if key in (OBJECT_KEY, SCENE_KEY):
+                continue
+            if feature.type is FeatureType.VISUAL:
+                raise ValueError(f"taxdpd takes point clouds only; remove the image feature '{key}'")
+
+    @property
+    def observation_delta_indices(self) -> None:
+        return None
+
+    @property
+    def action_delta_indices(self) -> None:
+        return None
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

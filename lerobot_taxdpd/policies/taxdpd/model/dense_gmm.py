@@ -1,0 +1,58 @@
+"""Global placement initialisation: a Dense GMM with one Gaussian per scene point.
+
+Scene tokens (PointNet++ features of the scene) cross-attend to object tokens in a DiT conditioned on the
+object-to-scene offset (the diffusion step is fixed at 0, so a learned vector replaces its embedding).
+Each scene point i gets a mixing logit and a residual r_i; the component mean is p_i + r_i. Trained by the
+negative log-likelihood of the true goal centroid under isotropic Gaussians of fixed variance.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
+
+
+class DenseGMM(nn.Module):
+    def __init__(self, config) -> None:
+        super().__init__()
+        dim = config.hidden_dim
+        self.variance = config.gmm_variance
+        self.uniform_weight = config.gmm_uniform_weight
+        self.object_encoder = make_encoder(config, in_channels=0)
+        self.scene_encoder = make_encoder(config, in_channels=0)
+        self.condition = nn.Parameter(torch.zeros(dim))
+        self.offset_embedding = nn.Sequential(nn.Linear(3, dim), nn.SiLU(), nn.Linear(dim, dim))
+        self.backbone = DiT(dim, config.num_heads, config.num_blocks, config.mlp_ratio)
+        self.head = OutputHead(dim, 4)
+
+    def forward(self, object_centred: Tensor, scene_centred: Tensor, offset: Tensor) -> tuple[Tensor, Tensor]:
+        """object_centred (B, N, 3), scene_centred (B, M, 3), offset = object centroid - scene centroid (B, 3).
+
+        Returns mixing logits (B, M) and component means (B, M, 3) in the scene-centred frame.
+        """
+        object_tokens = self.object_encoder(object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0))
+        scene_tokens = self.scene_encoder(scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0))
+        condition = self.condition + self.offset_embedding(offset)
+        out = self.head(self.backbone(scene_tokens, object_tokens, condition), condition).float()
+        return out[..., 0], scene_centred + out[..., 1:]
+
+    def log_likelihood(self, logits: Tensor, means: Tensor, target: Tensor) -> Tensor:
+        """log p(target) under the mixture: logsumexp_i [log w_i + log N(target; mean_i, var I)]  -> (B,)."""
+        d2 = (means - target.unsqueeze(1)).square().sum(-1)
+        log_gauss = -0.5 * d2 / self.variance - 1.5 * math.log(2 * math.pi * self.variance)
+        return torch.logsumexp(torch.log_softmax(logits, -1) + log_gauss, dim=-1)
+
+    def loss(self, logits: Tensor, means: Tensor, target: Tensor) -> Tensor:
+        """NLL of the goal centroid, plus `uniform_weight` x the NLL with equal weights.
+
+        The second term gives every component a gradient, so residuals stay useful where the weights are
+        still small (otherwise a mode the weights missed early is never learnt).
+        """
+        nll = -self.log_likelihood(logits, means, target)
+        uniform_nll = -self.log_likelihood(torch.zeros_like(logits), means, target)
+        return (nll + self.uniform_weight * uniform_nll).mean()

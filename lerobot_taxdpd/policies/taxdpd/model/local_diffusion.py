@@ -1,0 +1,188 @@
+"""Local configuration refinement: point-cloud diffusion of the goal in the placement frame g.
+
+Token construction (paper, Method Details):
+- reconstruction embedding: one encoder over [current goal estimate (flag 1) | scene (flag 0)], split
+  into object-side and scene-side features; the scene side become the scene tokens;
+- object embedding: the initial, mean-centred object (constant while sampling, so computed once);
+- deformation embedding: per-point [shape estimate, displacement, zero-mean displacement] (9 channels);
+- token mixing: a linear layer from the concatenated object-side streams to `hidden_dim`.
+Object tokens plus a learnable frame token go through the DiT, cross-attending to the scene tokens; the
+frame token is read out by the frame head and the object tokens by the shape head.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
+from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
+from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
+
+
+@dataclass
+class DenoiserContext:
+    """Everything that stays fixed while one batch is denoised."""
+
+    object_centred: Tensor  # (B, N, 3)
+    scene: Tensor  # (B, M, 3), placement frame
+    object_layout: SamplingLayout | None
+    object_grouping: Grouping | None
+    object_features: Tensor  # (B, N, dim)
+    reconstruction_layout: SamplingLayout | None
+    scene_features: Tensor | None  # scene tokens when there is no reconstruction embedding
+
+
+def _empty_channels(x: Tensor) -> Tensor:
+    return x.new_zeros(*x.shape[:-1], 0)
+
+
+class LocalDenoiser(nn.Module):
+    """Predicts the noise of every diffused variable from the current goal estimate."""
+
+    def __init__(self, config, frame_dim: int | None, has_point_output: bool) -> None:
+        super().__init__()
+        dim = config.hidden_dim
+        self.use_reconstruction = config.use_reconstruction_embedding
+        self.use_deformation = config.use_deformation_embedding
+        if self.use_reconstruction:
+            self.reconstruction_encoder = make_encoder(config, in_channels=1)
+        else:
+            self.estimate_encoder = make_encoder(config, in_channels=0)
+            self.scene_encoder = make_encoder(config, in_channels=0)
+        self.object_encoder = make_encoder(config, in_channels=0)
+        if self.use_deformation:
+            self.deformation_encoder = make_encoder(config, in_channels=9)
+        self.token_mixing = nn.Linear((3 if self.use_deformation else 2) * dim, dim)
+        self.timestep_embedding = TimestepEmbedding(dim, config.timestep_embed_dim)
+        self.frame_token = nn.Parameter(torch.randn(1, 1, dim) * 0.02) if frame_dim else None
+        self.backbone = DiT(dim, config.num_heads, config.num_blocks, config.mlp_ratio)
+        self.point_head = OutputHead(dim, 3) if has_point_output else None
+        self.frame_head = OutputHead(dim, frame_dim) if frame_dim else None
+
+    def context(self, object_centred: Tensor, scene: Tensor) -> DenoiserContext:
+        """Cache the work that does not depend on the goal estimate.
+
+        `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3), i.e.
+        K translated copies of each scene: object-only work, and the farthest point sampling (invariant to
+        translation), are done once per object and scene and repeated.
+        """
+        repeats = scene.shape[0] // object_centred.shape[0]
+        reconstruction_layout = scene_features = None
+        if self.use_reconstruction:
+            layout = self.reconstruction_encoder.layout([object_centred, scene[::repeats]])
+            reconstruction_layout = layout.repeat_interleave(repeats) if layout is not None else None
+        else:
+            scene_features = self.scene_encoder(scene, _empty_channels(scene))
+        object_layout = self.object_encoder.layout([object_centred])
+        object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
+        object_features = self.object_encoder(
+            object_centred, _empty_channels(object_centred), layout=object_layout, grouping=object_grouping
+        )
+        if repeats > 1:
+            object_centred = object_centred.repeat_interleave(repeats, 0)
+            object_features = object_features.repeat_interleave(repeats, 0)
+            object_layout = object_layout.repeat_interleave(repeats) if object_layout else None
+            object_grouping = object_grouping.repeat_interleave(repeats) if object_grouping else None
+        return DenoiserContext(
+            object_centred, scene, object_layout, object_grouping, object_features, reconstruction_layout, scene_features
+        )
+
+    def forward(
+        self, context: DenoiserContext, goal_estimate: Tensor, shape_estimate: Tensor, t: Tensor
+    ) -> tuple[Tensor | None, Tensor | None]:
+        n = goal_estimate.shape[1]
+        if self.use_reconstruction:
+            xyz = torch.cat([goal_estimate, context.scene], 1)
+            flags = torch.cat([xyz.new_ones(xyz.shape[0], n, 1), xyz.new_zeros(xyz.shape[0], context.scene.shape[1], 1)], 1)
+            features = self.reconstruction_encoder(xyz, flags, layout=context.reconstruction_layout)
+            estimate_features, scene_tokens = features[:, :n], features[:, n:]
+        else:
+            estimate_features = self.estimate_encoder(
+                goal_estimate, _empty_channels(goal_estimate), layout=context.object_layout
+            )
+            scene_tokens = context.scene_features
+        streams = [estimate_features, context.object_features]
+        if self.use_deformation:
+            displacement = goal_estimate - context.object_centred
+            deformation_input = torch.cat([shape_estimate, displacement, shape_estimate - context.object_centred], -1)
+            streams.append(
+                self.deformation_encoder(
+                    context.object_centred, deformation_input, layout=context.object_layout, grouping=context.object_grouping
+                )
+            )
+        tokens = self.token_mixing(torch.cat(streams, -1))
+        condition = self.timestep_embedding(t)
+        if self.frame_token is not None:
+            tokens = torch.cat([tokens, self.frame_token.expand(tokens.shape[0], -1, -1).to(tokens.dtype)], 1)
+        tokens = self.backbone(tokens, scene_tokens, condition)
+        point_out = self.point_head(tokens[:, :n], condition).float() if self.point_head is not None else None
+        frame_out = self.frame_head(tokens[:, n:], condition)[:, 0].float() if self.frame_head is not None else None
+        return point_out, frame_out
+
+
+class LocalDiffusion(nn.Module):
+    """DDPM over the goal in the placement frame: training loss and few-step sampling."""
+
+    def __init__(self, config) -> None:
+        super().__init__()
+        self.parameterization = make_parameterization(config)
+        self.denoiser = LocalDenoiser(
+            config, self.parameterization.frame_dim, self.parameterization.has_point_output
+        )
+        self.training_scheduler = make_training_scheduler(config)
+        self.sampling_scheduler = make_sampling_scheduler(config)
+        self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
+
+    def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
+        goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
+        return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t), context.object_centred)
+
+    def loss(
+        self, object_centred: Tensor, scene: Tensor, goal: Tensor, generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        """Denoising losses for clean goals (B, N, 3) in the placement frame, against the configured target."""
+        param, scheduler = self.parameterization, self.training_scheduler
+        clean = param.encode(goal, object_centred)
+        noise = param.sample_noise(clean, self.rotation_noise_std, generator)
+        device = generator.device if generator is not None else goal.device
+        t = torch.randint(0, scheduler.config.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
+        t = t.to(goal.device)
+        noisy = {k: scheduler.add_noise(clean[k], noise[k], t) for k in clean}
+        target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
+        return param.loss(self._predict(self.denoiser.context(object_centred, scene), noisy, t), target)
+
+    @torch.no_grad()
+    def sample(
+        self,
+        object_centred: Tensor,
+        scene: Tensor,
+        num_inference_steps: int,
+        *,
+        eta: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3)."""
+        context = self.denoiser.context(object_centred, scene)
+        param, scheduler = self.parameterization, self.sampling_scheduler
+        state = param.initial_state(context.object_centred, generator)
+        scheduler.set_timesteps(num_inference_steps)
+        for t in scheduler.timesteps:
+            predicted = self._predict(context, state, t.expand(scene.shape[0]).to(scene.device))
+            state = param.project(
+                {
+                    k: scheduler.step(
+                        predicted[k],
+                        t,
+                        state[k],
+                        eta=eta,
+                        variance_noise=randn_like(state[k], generator) if eta > 0 else None,
+                    ).prev_sample
+                    for k in state
+                }
+            )
+        return param.compose(state, context.object_centred)[0]

@@ -1,0 +1,163 @@
+"""How the local stage represents a goal cloud in the placement frame g, one class per ablation.
+
+A parameterization maps a goal cloud to the variables that are diffused (`encode`), composes the current
+goal estimate back from them (`compose`), says how to noise them (`sample_noise`), and reads the
+denoiser's outputs as predicted noise (`split`). The scheduler treats every variable alike.
+
+- `DisentangledPoints` (TAX-DPD): a frame rho (B, 1, 3) = goal centroid and a zero-mean shape phi (B, N, 3).
+- `JointPoints` ("w/o disentangled point diffusion"): the goal points (B, N, 3) diffused as one variable.
+- `SE3Pose` ("w/ SE(3) diffusion"): the frame plus a 6-D rotation (B, 1, 6) applied to the initial object.
+- `RigidShapeHead`: TAX-DPD's variables, but the denoiser's clean-shape estimate is a rotation R (read from
+  the frame token) applied to the initial object, plus the point head's per-point residual. The one global
+  rotation is what a rigid goal shape is; deformations stay possible through the residual.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from lerobot_taxdpd.maths.geometry import (
+    fit_rigid_transform,
+    matrix_to_rotation_6d,
+    random_axis_angle_rotation,
+    rotation_6d_to_matrix,
+)
+
+State = dict[str, Tensor]
+
+
+def randn_like(x: Tensor, generator: torch.Generator | None = None) -> Tensor:
+    """Standard normal noise shaped like `x`, drawn from `generator` (on its own device) when given."""
+    device = generator.device if generator is not None else x.device
+    return torch.randn(x.shape, generator=generator, device=device, dtype=x.dtype).to(x.device)
+
+
+def _centre(x: Tensor) -> Tensor:
+    return x - x.mean(dim=1, keepdim=True)
+
+
+def _rotation_noise(shape: Tensor, std: float, generator: torch.Generator | None) -> Tensor:
+    """R phi - phi for a random rotation R (axis uniform on S^2, angle ~ N(0, std^2)), per sample."""
+    device = generator.device if generator is not None else shape.device
+    rotation = random_axis_angle_rotation(shape.shape[0], std, generator=generator, device=device, dtype=shape.dtype)
+    return shape @ rotation.to(shape.device).transpose(-1, -2) - shape
+
+
+class DisentangledPoints:
+    frame_dim = 3
+    has_point_output = True
+
+    def encode(self, goal: Tensor, object_centred: Tensor) -> State:
+        frame = goal.mean(dim=1, keepdim=True)
+        return {"frame": frame, "shape": goal - frame}
+
+    def sample_noise(self, clean: State, rotation_std: float, generator=None) -> State:
+        shape_noise = _centre(randn_like(clean["shape"], generator))
+        if rotation_std > 0:
+            shape_noise = shape_noise + _rotation_noise(clean["shape"], rotation_std, generator)
+        return {"frame": randn_like(clean["frame"], generator), "shape": shape_noise}
+
+    def initial_state(self, object_centred: Tensor, generator=None) -> State:
+        return self.project(
+            {"frame": randn_like(object_centred[:, :1], generator), "shape": randn_like(object_centred, generator)}
+        )
+
+    def project(self, state: State) -> State:
+        return {"frame": state["frame"], "shape": _centre(state["shape"])}
+
+    def compose(self, state: State, object_centred: Tensor) -> tuple[Tensor, Tensor]:
+        return state["shape"] + state["frame"], state["shape"]
+
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+        return {"frame": frame_out.unsqueeze(1), "shape": _centre(point_out)}
+
+    def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
+        frame = F.mse_loss(predicted["frame"], target["frame"])
+        shape = F.mse_loss(predicted["shape"], target["shape"])
+        return {"loss_local": 0.5 * frame + 0.5 * shape, "loss_frame": frame, "loss_shape": shape}
+
+
+class JointPoints:
+    frame_dim = None
+    has_point_output = True
+
+    def encode(self, goal: Tensor, object_centred: Tensor) -> State:
+        return {"points": goal}
+
+    def sample_noise(self, clean: State, rotation_std: float, generator=None) -> State:
+        noise = randn_like(clean["points"], generator)
+        if rotation_std > 0:
+            noise = noise + _rotation_noise(_centre(clean["points"]), rotation_std, generator)
+        return {"points": noise}
+
+    def initial_state(self, object_centred: Tensor, generator=None) -> State:
+        return {"points": randn_like(object_centred, generator)}
+
+    def project(self, state: State) -> State:
+        return state
+
+    def compose(self, state: State, object_centred: Tensor) -> tuple[Tensor, Tensor]:
+        return state["points"], _centre(state["points"])
+
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+        return {"points": point_out}
+
+    def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
+        points = F.mse_loss(predicted["points"], target["points"])
+        return {"loss_local": points, "loss_points": points}
+
+
+class SE3Pose:
+    frame_dim = 9
+    has_point_output = False
+
+    def encode(self, goal: Tensor, object_centred: Tensor) -> State:
+        frame = goal.mean(dim=1, keepdim=True)
+        rotation = fit_rigid_transform(object_centred, goal - frame)[..., :3, :3]
+        return {"frame": frame, "rotation": matrix_to_rotation_6d(rotation).unsqueeze(1)}
+
+    def sample_noise(self, clean: State, rotation_std: float, generator=None) -> State:
+        return {k: randn_like(v, generator) for k, v in clean.items()}
+
+    def initial_state(self, object_centred: Tensor, generator=None) -> State:
+        frame = randn_like(object_centred[:, :1], generator)
+        rotation = randn_like(object_centred.new_empty(object_centred.shape[0], 1, 6), generator)
+        return {"frame": frame, "rotation": rotation}
+
+    def project(self, state: State) -> State:
+        return state
+
+    def compose(self, state: State, object_centred: Tensor) -> tuple[Tensor, Tensor]:
+        rotation = rotation_6d_to_matrix(state["rotation"][:, 0])
+        shape = object_centred @ rotation.transpose(-1, -2)
+        return shape + state["frame"], shape
+
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+        return {"frame": frame_out[:, None, :3], "rotation": frame_out[:, None, 3:]}
+
+    def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
+        frame = F.mse_loss(predicted["frame"], target["frame"])
+        rotation = F.mse_loss(predicted["rotation"], target["rotation"])
+        return {"loss_local": 0.5 * frame + 0.5 * rotation, "loss_frame": frame, "loss_rotation": rotation}
+
+
+_IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+class RigidShapeHead(DisentangledPoints):
+    frame_dim = 9
+
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+        rotation = rotation_6d_to_matrix(frame_out[:, 3:] + frame_out.new_tensor(_IDENTITY_6D))
+        shape = object_centred.to(rotation.dtype) @ rotation.transpose(-1, -2) + point_out
+        return {"frame": frame_out[:, None, :3], "shape": _centre(shape)}
+
+
+def make_parameterization(config) -> DisentangledPoints | JointPoints | SE3Pose:
+    if config.local_diffusion == "se3":
+        return SE3Pose()
+    if not config.disentangled:
+        return JointPoints()
+    return RigidShapeHead() if config.rotation_head else DisentangledPoints()

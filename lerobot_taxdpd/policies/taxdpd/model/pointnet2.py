@@ -1,0 +1,224 @@
+"""PointNet++ in plain PyTorch (no compiled extensions), split so that work can be cached.
+
+A forward pass has three parts with different lifetimes:
+- `SamplingLayout`: which points become set-abstraction centroids (farthest point sampling). It is
+  computed per *part* (object, scene) from coordinates that do not change while denoising (the initial
+  object, the scene), so one layout serves every encoder and every denoising step.
+- `Grouping`: ball-query neighbours and 3-NN interpolation weights for the current coordinates. Cached
+  when the coordinates are constant (object and deformation encoders), rebuilt each step otherwise.
+- the MLPs, the only part with parameters.
+
+Widths follow the paper's encoder at hidden size 128 and scale with `hidden_dim`: set abstraction
+(64, 64, 128) and (128, 128, 256) with ratios 0.2 / 0.25 and at most 64 neighbours, a global layer
+(256, 512, 1024), feature propagation back to `hidden_dim` per point, no batch norm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from lerobot_taxdpd.maths.geometry import farthest_point_sample, gather_points
+
+
+@dataclass
+class SamplingLayout:
+    """Centroid indices: level 1 into the points, level 2 into the level-1 centroids."""
+
+    level1: Tensor  # (B, M1)
+    level2: Tensor  # (B, M2)
+
+    def repeat_interleave(self, repeats: int) -> SamplingLayout:
+        return SamplingLayout(self.level1.repeat_interleave(repeats, 0), self.level2.repeat_interleave(repeats, 0))
+
+
+@dataclass
+class Grouping:
+    neighbors1: Tensor  # (B, M1, K) indices into the points
+    neighbors2: Tensor  # (B, M2, K) indices into the level-1 centroids
+    to_level1: tuple[Tensor, Tensor]  # 3-NN (indices into level 2, weights) for each level-1 centroid
+    to_points: tuple[Tensor, Tensor]  # 3-NN (indices into level 1, weights) for each point
+
+    def repeat_interleave(self, repeats: int) -> Grouping:
+        def rep(x: Tensor) -> Tensor:
+            return x.repeat_interleave(repeats, 0)
+
+        return Grouping(
+            rep(self.neighbors1),
+            rep(self.neighbors2),
+            (rep(self.to_level1[0]), rep(self.to_level1[1])),
+            (rep(self.to_points[0]), rep(self.to_points[1])),
+        )
+
+
+def _count(n: int, ratio: float) -> int:
+    return max(1, round(n * ratio))
+
+
+@torch.no_grad()
+def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> SamplingLayout:
+    """FPS centroids per part (each (B, N_i, 3)), indexed into the concatenation of the parts."""
+    level1, level2 = [], []
+    offset = offset1 = 0
+    for part in parts:
+        part = part.float()
+        idx1 = farthest_point_sample(part, _count(part.shape[1], ratios[0]))
+        idx2 = farthest_point_sample(gather_points(part, idx1), _count(idx1.shape[1], ratios[1]))
+        level1.append(idx1 + offset)
+        level2.append(idx2 + offset1)
+        offset += part.shape[1]
+        offset1 += idx1.shape[1]
+    return SamplingLayout(torch.cat(level1, 1), torch.cat(level2, 1))
+
+
+def _square_distances(a: Tensor, b: Tensor) -> Tensor:
+    return ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(-2) - 2.0 * a @ b.transpose(-1, -2)).clamp_min(0.0)
+
+
+def _ball_query(centres: Tensor, points: Tensor, radius: float, max_neighbors: int) -> Tensor:
+    """Up to `max_neighbors` nearest points within `radius` of each centre; out-of-ball slots repeat the nearest."""
+    d2 = _square_distances(centres, points)
+    k = min(max_neighbors, points.shape[1])
+    dist, idx = d2.topk(k, dim=-1, largest=False)
+    return torch.where(dist <= radius * radius, idx, idx[..., :1])
+
+
+def _three_nn(targets: Tensor, sources: Tensor) -> tuple[Tensor, Tensor]:
+    """Inverse-distance weights of the 3 nearest sources of every target."""
+    d2 = _square_distances(targets, sources)
+    dist, idx = d2.topk(min(3, sources.shape[1]), dim=-1, largest=False)
+    weights = 1.0 / (dist + 1e-8)
+    return idx, weights / weights.sum(-1, keepdim=True)
+
+
+@torch.no_grad()
+def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, float], max_neighbors: int) -> Grouping:
+    """Neighbourhoods and interpolation weights of `xyz` (B, N, 3) for a fixed centroid layout (fp32)."""
+    with torch.autocast(device_type=xyz.device.type, enabled=False):
+        xyz = xyz.float()
+        centres1 = gather_points(xyz, layout.level1)
+        centres2 = gather_points(centres1, layout.level2)
+        return Grouping(
+            neighbors1=_ball_query(centres1, xyz, radii[0], max_neighbors),
+            neighbors2=_ball_query(centres2, centres1, radii[1], max_neighbors),
+            to_level1=_three_nn(centres1, centres2),
+            to_points=_three_nn(xyz, centres1),
+        )
+
+
+def _interpolate(features: Tensor, weights: tuple[Tensor, Tensor]) -> Tensor:
+    idx, w = weights
+    return (gather_points(features, idx) * w.unsqueeze(-1).to(features.dtype)).sum(-2)
+
+
+def _mlp(widths: Sequence[int], final_activation: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
+        layers.append(nn.Linear(a, b))
+        if final_activation or i < len(widths) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+class SetAbstraction(nn.Module):
+    """Shared MLP on [p_j - c_i, f_j] over each ball, max-pooled.
+
+    The first layer is linear in (p_j - c_i), so it is evaluated once per point and once per centroid
+    (W_x p_j + W_f f_j + b, minus W_x c_i) instead of once per (centroid, neighbour) pair.
+    """
+
+    def __init__(self, in_channels: int, widths: Sequence[int]) -> None:
+        super().__init__()
+        self.first = nn.Linear(in_channels + 3, widths[0])
+        self.rest = _mlp(widths)
+
+    def forward(self, xyz: Tensor, features: Tensor, centres_xyz: Tensor, neighbors: Tensor) -> Tensor:
+        per_point = self.first(torch.cat([xyz, features], -1))
+        per_centre = F.linear(centres_xyz, self.first.weight[:, :3])
+        grouped = gather_points(per_point, neighbors) - per_centre.unsqueeze(-2).to(per_point.dtype)
+        return self.rest(torch.relu(grouped)).amax(dim=-2)
+
+
+class PointNet2Encoder(nn.Module):
+    """Per-point features (B, N, out_dim) of a cloud with extra per-point input channels."""
+
+    def __init__(
+        self,
+        in_channels: int,
+        out_dim: int,
+        hidden_dim: int,
+        ratios: tuple[float, float],
+        radii: tuple[float, float],
+        max_neighbors: int,
+    ) -> None:
+        super().__init__()
+        b = max(hidden_dim // 2, 8)
+        self.ratios, self.radii, self.max_neighbors = ratios, radii, max_neighbors
+        self.sa1 = SetAbstraction(in_channels + 3, (b, b, 2 * b))
+        self.sa2 = SetAbstraction(2 * b, (2 * b, 2 * b, 4 * b))
+        self.global_sa = _mlp((4 * b + 3, 4 * b, 8 * b, 16 * b))
+        self.fp_global = _mlp((16 * b + 4 * b, 4 * b, 4 * b))
+        self.fp2 = _mlp((4 * b + 2 * b, 4 * b, 2 * b))
+        self.fp1 = _mlp((2 * b + in_channels + 3, 2 * b, 2 * b, out_dim), final_activation=False)
+
+    def layout(self, parts: Sequence[Tensor]) -> SamplingLayout:
+        """Centroids chosen per part (e.g. [object, scene]) of the concatenated cloud."""
+        return sampling_layout(parts, self.ratios)
+
+    def group(self, xyz: Tensor, layout: SamplingLayout) -> Grouping:
+        return build_grouping(xyz, layout, self.radii, self.max_neighbors)
+
+    def forward(
+        self, xyz: Tensor, features: Tensor, layout: SamplingLayout | None = None, grouping: Grouping | None = None
+    ) -> Tensor:
+        if layout is None:
+            layout = self.layout([xyz])
+        if grouping is None:
+            grouping = self.group(xyz, layout)
+        point_features = torch.cat([xyz, features], -1)
+        centres1 = gather_points(xyz, layout.level1)
+        centres2 = gather_points(centres1, layout.level2)
+        f1 = self.sa1(xyz, point_features, centres1, grouping.neighbors1)
+        f2 = self.sa2(centres1, f1, centres2, grouping.neighbors2)
+        global_feature = self.global_sa(torch.cat([centres2, f2], -1)).amax(dim=1, keepdim=True)
+        f2 = self.fp_global(torch.cat([f2, global_feature.expand(-1, f2.shape[1], -1)], -1))
+        f1 = self.fp2(torch.cat([_interpolate(f2, grouping.to_level1), f1], -1))
+        return self.fp1(torch.cat([_interpolate(f1, grouping.to_points), point_features], -1))
+
+
+class PointMLPEncoder(nn.Module):
+    """The "w/ MLP encodings" ablation: the same per-point interface with no neighbourhood reasoning."""
+
+    def __init__(self, in_channels: int, out_dim: int, hidden_dim: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Linear(in_channels + 3, hidden_dim),
+            nn.LayerNorm(hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, hidden_dim),
+            nn.LayerNorm(hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, out_dim),
+        )
+
+    def layout(self, parts: Sequence[Tensor]) -> None:
+        return None
+
+    def group(self, xyz: Tensor, layout: SamplingLayout | None) -> None:
+        return None
+
+    def forward(self, xyz: Tensor, features: Tensor, layout=None, grouping=None) -> Tensor:
+        return self.net(torch.cat([xyz, features], -1))
+
+
+def make_encoder(config, in_channels: int) -> PointNet2Encoder | PointMLPEncoder:
+    """The encoder selected by `config.encoder`, taking xyz plus `in_channels` extra channels per point."""
+    if config.encoder == "mlp":
+        return PointMLPEncoder(in_channels, config.hidden_dim, config.hidden_dim)
+    return PointNet2Encoder(
+        in_channels, config.hidden_dim, config.hidden_dim, config.sa_ratios, config.sa_radii, config.max_neighbors
+    )

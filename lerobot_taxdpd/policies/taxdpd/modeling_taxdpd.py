@@ -1,0 +1,385 @@
+"""TAX-DPD as a LeRobot policy: `TaxDPDModel` holds both stages, `TaxDPDPolicy` talks to LeRobot and users.
+
+Inputs and outputs of the policy are in metres in the caller's frame. Internally every cloud is moved to
+the scene centroid and multiplied by `config.point_scale` ("model units"). One `lerobot-train` step
+trains both stages: the Dense GMM on the true goal centroid, and the local diffusion in a placement frame
+drawn around the true centroid (not from the GMM), as in the paper.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from huggingface_hub import ModelCard, ModelCardData, hf_hub_download
+from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
+from lerobot.policies.pretrained import PreTrainedPolicy
+from torch import Tensor, nn
+
+from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
+from lerobot_taxdpd.data.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
+from lerobot_taxdpd.maths.geometry import (
+    estimate_rigid_transform,
+    farthest_point_sample,
+    gather_points,
+    lift_point_motion,
+    nearest_indices,
+)
+from lerobot_taxdpd.policies.taxdpd.augmentation import (
+    ball_cut,
+    downsample_indices,
+    plane_cut,
+    random_start_pose,
+    random_z_rotation,
+)
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig, check_inference_steps
+from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
+from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
+from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
+from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
+
+logger = logging.getLogger(__name__)
+
+#: DDIM's stochasticity per sampler name: deterministic DDIM, or ancestral DDPM sampling.
+SAMPLER_ETA = {"ddim": 0.0, "ddpm": 1.0}
+
+
+class TaxDPDModel(nn.Module):
+    """Dense GMM (global) + disentangled point diffusion (local).
+
+    Every cloud it takes and returns is in model units, centred on the scene centroid (see `ModelFrame`):
+    the scene's centroid is the origin, so the object's centroid is the object-to-scene offset.
+    """
+
+    def __init__(self, config: TaxDPDConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.global_stage = DenseGMM(config) if config.use_gmm else None
+        self.local_stage = LocalDiffusion(config)
+
+    def _gmm(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
+        """Mixing logits (B, M) and component means (B, M, 3)."""
+        object_centroid = object_points.mean(1)
+        return self.global_stage(object_points - object_centroid.unsqueeze(1), scene_points, object_centroid)
+
+    def compute_loss(self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor) -> dict[str, Tensor]:
+        target = goal_points.mean(1)
+        losses: dict[str, Tensor] = {}
+        if self.global_stage is not None:
+            logits, means = self._gmm(object_points, scene_points)
+            losses["loss_gmm"] = self.global_stage.loss(logits, means, target)
+            frame = target + randn_like(target) * self.config.frame_noise_std
+        else:
+            frame = torch.zeros_like(target)  # the scene centroid
+        frame = frame.unsqueeze(1)
+        object_centred = object_points - object_points.mean(1, keepdim=True)
+        losses.update(self.local_stage.loss(object_centred, scene_points - frame, goal_points - frame))
+        losses["loss"] = losses["loss_local"] + losses.get("loss_gmm", 0.0)
+        return losses
+
+    def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
+        if self.global_stage is None:
+            raise RuntimeError("this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution")
+        logits, means = self._gmm(object_points, scene_points)
+        return torch.softmax(logits, -1), means
+
+    def sample(
+        self,
+        object_points: Tensor,
+        scene_points: Tensor,
+        num_samples: int,
+        num_inference_steps: int,
+        *,
+        eta: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3)."""
+        b, n, _ = object_points.shape
+        if self.global_stage is not None:
+            logits, means = self._gmm(object_points, scene_points)
+            probabilities = torch.softmax(logits.float(), -1)
+            if generator is not None:
+                probabilities = probabilities.to(generator.device)
+            component = torch.multinomial(probabilities, num_samples, replacement=True, generator=generator)
+            frames = gather_points(means.float(), component.to(means.device))
+        else:
+            frames = scene_points.new_zeros(b, num_samples, 3)
+        frames = frames.reshape(b * num_samples, 1, 3)
+        scene_local = scene_points.repeat_interleave(num_samples, 0) - frames
+        object_centred = object_points - object_points.mean(1, keepdim=True)
+        goals = self.local_stage.sample(
+            object_centred, scene_local, num_inference_steps, eta=eta, generator=generator
+        )
+        return (goals + frames).reshape(b, num_samples, n, 3)
+
+
+@dataclass(frozen=True)
+class ModelFrame:
+    """Metres in the caller's frame <-> model units: centred on the scene's centroid, scaled by `scale`."""
+
+    origin: Tensor  # (B, 1, 3), metres
+    scale: float  # model units per metre
+
+    @classmethod
+    def of_scene(cls, scene_points: Tensor, scale: float) -> ModelFrame:
+        return cls(scene_points.mean(1, keepdim=True), scale)
+
+    def to_model(self, points: Tensor) -> Tensor:
+        """(B, N, 3) metres -> model units."""
+        return (points - self.origin) * self.scale
+
+    def to_metres(self, points: Tensor) -> Tensor:
+        """(B, ..., N, 3) model units -> metres."""
+        origin = self.origin.reshape(self.origin.shape[0], *([1] * (points.dim() - 2)), 3)
+        return points.float() / self.scale + origin
+
+
+class TaxDPDPolicy(PreTrainedPolicy):
+    """Goal predictor for object placement: samples where every object point must go.
+
+    Public API (metres, caller's frame): `sample_goals`, `predict_poses`, `placement_distribution`.
+    `select_action` returns one goal cloud per batch element, so the policy also runs under `lerobot-eval`.
+    """
+
+    config_class = TaxDPDConfig
+    name = "taxdpd"
+
+    def __init__(self, config: TaxDPDConfig, dataset_stats=None, dataset_meta=None, **kwargs) -> None:
+        super().__init__(config)
+        config.validate_features()
+        if config.point_scale is None and dataset_meta is not None:
+            config.point_scale = estimate_point_scale(dataset_meta.root, config.object_scale)
+        self.model = TaxDPDModel(config)
+        self.metrics: dict = {}
+        self._warned_scale = False
+
+    # ------------------------------------------------------------------------------------ LeRobot hooks
+    def get_optim_params(self):
+        return self.parameters()
+
+    def reset(self) -> None:
+        """Nothing to reset: each call predicts a goal from the current observation alone."""
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
+        object_points, scene_points = self._checked_inputs(batch.get(OBJECT_KEY), batch.get(SCENE_KEY), OBJECT_KEY, SCENE_KEY)
+        goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points)
+        if self.training:
+            object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
+        frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points))
+        with self._autocast():
+            losses = self.model.compute_loss(
+                frame.to_model(object_points), frame.to_model(scene_points), frame.to_model(goal_points)
+            )
+        loss = losses.pop("loss")
+        return loss, {name: float(value.detach()) for name, value in losses.items()}
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """`config.num_goal_samples` goal clouds per batch element: (B, K, N_O, 3)."""
+        return self.sample_goals(batch[OBJECT_KEY], batch[SCENE_KEY], self.config.num_goal_samples)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """One goal cloud per batch element: (B, N_O, 3)."""
+        return self.predict_action_chunk(batch)[:, 0]
+
+    # -------------------------------------------------------------------------------------- public API
+    @torch.no_grad()
+    def sample_goals(
+        self,
+        object_points: Tensor,
+        scene_points: Tensor,
+        num_samples: int = 1,
+        *,
+        num_inference_steps: int | None = None,
+        sampler: str | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Sample goal clouds: object (B, N_O, 3), scene (B, N_S, 3) in metres -> (B, K, N_O, 3).
+
+        Tensors or numpy arrays are accepted; the answer is a float32 tensor on the policy's device.
+        Row i of each sample is where point i of the object should go. `num_inference_steps` and
+        `sampler` ("ddim" or "ddpm") default to the config's; `generator` makes sampling reproducible.
+        """
+        if not isinstance(num_samples, int) or num_samples < 1:
+            raise ValueError(f"num_samples: must be a positive integer, got {num_samples!r}")
+        object_points, scene_points = self._checked_inputs(object_points, scene_points)
+        steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        check_inference_steps(steps, self.config.num_train_timesteps)
+        sampler = self.config.sampler if sampler is None else sampler
+        if sampler not in SAMPLER_ETA:
+            raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
+        eta = SAMPLER_ETA[sampler]
+        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
+        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
+        with self._autocast():
+            goals = self.model.sample(
+                frame.to_model(model_object), frame.to_model(model_scene), num_samples, steps, eta=eta, generator=generator
+            )
+        goals = frame.to_metres(goals)
+        if model_object.shape[1] != object_points.shape[1]:
+            goals = lift_point_motion(object_points, model_object, goals)
+        return goals
+
+    @torch.no_grad()
+    def predict_poses(
+        self, object_points: Tensor, scene_points: Tensor, num_samples: int = 1, **sample_kwargs
+    ) -> Tensor:
+        """SE(3) goal poses T (B, K, 4, 4) with goal = T @ object, fitted to sampled goals by RANSAC-SVD."""
+        goals = self.sample_goals(object_points, scene_points, num_samples, **sample_kwargs)
+        source = object_points.to(goals).unsqueeze(1).expand_as(goals)
+        transforms, _ = estimate_rigid_transform(
+            source,
+            goals,
+            threshold=self.config.ransac_threshold,
+            num_hypotheses=self.config.ransac_hypotheses,
+            generator=sample_kwargs.get("generator"),
+        )
+        return transforms.float()
+
+    @torch.no_grad()
+    def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
+        """The Dense GMM: mixing weights (B, N_S) over scene points and component means (B, N_S, 3), metres."""
+        object_points, scene_points = self._checked_inputs(object_points, scene_points)
+        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
+        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
+        with self._autocast():
+            weights, means = self.model.placement_distribution(frame.to_model(model_object), frame.to_model(model_scene))
+        weights, means = weights.float(), frame.to_metres(means)
+        if model_scene.shape[1] != scene_points.shape[1]:
+            # Each component of the reduced scene stands for the input points nearest to it: they share its
+            # mean and split its weight, so the answer keeps one entry per input scene point and sums to one.
+            nearest = nearest_indices(scene_points, model_scene).squeeze(-1)  # (B, N_S)
+            counts = torch.zeros_like(weights).scatter_add_(1, nearest, torch.ones_like(nearest, dtype=weights.dtype))
+            weights = weights.gather(1, nearest) / counts.gather(1, nearest)
+            means = gather_points(means, nearest)
+        return weights, means
+
+    # ---------------------------------------------------------------------------------------- helpers
+    def _autocast(self):
+        if not self.config.use_amp:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=next(self.parameters()).device.type, dtype=torch.bfloat16)
+
+    @staticmethod
+    def _at_model_resolution(points: Tensor, num_points: int) -> Tensor:
+        """Clouds larger than the network's point count, reduced by (deterministic) farthest point sampling.
+
+        The network is trained at `num_*_points`; feeding it denser clouds would change every PointNet++
+        neighbourhood and cost attention quadratically, so inference sees the same resolution as training.
+        """
+        if points.shape[1] <= num_points:
+            return points
+        return gather_points(points, farthest_point_sample(points, num_points))
+
+    def _point_scale(self, object_points: Tensor) -> float:
+        if self.config.point_scale is not None:
+            return self.config.point_scale
+        if not self._warned_scale:
+            logger.warning(
+                "config.point_scale is unset (no training dataset was given): scaling by this batch's median "
+                "object radius. Set point_scale or train on a dataset to fix it."
+            )
+            self._warned_scale = True
+        return self.config.object_scale / float(object_radius(object_points.double()).median().clamp_min(1e-9))
+
+    def _checked_inputs(
+        self, object_points, scene_points, object_name: str = "object_points", scene_name: str = "scene_points"
+    ) -> tuple[Tensor, Tensor]:
+        checked = []
+        for value, name in ((object_points, object_name), (scene_points, scene_name)):
+            if value is None:
+                raise PointCloudError(f"{name}: missing")
+            if isinstance(value, np.ndarray):
+                value = torch.from_numpy(value)
+            if isinstance(value, Tensor) and value.dim() == 2:
+                raise PointCloudError(f"{name}: expected a batch (B, N, 3), got {tuple(value.shape)}; add one with [None]")
+            check_point_cloud(value, name, min_points=3, batched=True)
+            if value.dim() != 3:
+                raise PointCloudError(f"{name}: expected shape (B, N, 3), got {tuple(value.shape)}")
+            checked.append(value)
+        object_points, scene_points = checked
+        if object_points.shape[0] != scene_points.shape[0]:
+            raise PointCloudError(
+                f"{object_name} and {scene_name}: batch sizes {object_points.shape[0]} and {scene_points.shape[0]} differ"
+            )
+        device = next(self.parameters()).device
+        return object_points.to(device, torch.float32), scene_points.to(device, torch.float32)
+
+    def _checked_goal(self, goal_points, object_points: Tensor) -> Tensor:
+        if goal_points is None:
+            raise PointCloudError(f"{ACTION_KEY}: missing (the goal cloud is the training target)")
+        check_point_cloud(goal_points, ACTION_KEY, min_points=3, batched=True)
+        check_same_shape(object_points, goal_points, OBJECT_KEY, ACTION_KEY)
+        return goal_points.to(object_points)
+
+    def _augment(self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        config = self.config
+        if config.z_rotation_augmentation:
+            object_points, scene_points, goal_points = random_z_rotation(object_points, scene_points, goal_points)
+        if config.start_yaw_range > 0 or config.start_tilt_range > 0:
+            object_points = random_start_pose(object_points, config.start_yaw_range, config.start_tilt_range)
+        if config.object_occlusion_prob > 0:
+            keep = plane_cut(object_points, config.object_occlusion_prob)
+            object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
+        if config.scene_occlusion_prob > 0:
+            scene_points = gather_points(scene_points, ball_cut(scene_points, config.scene_occlusion_prob))
+        if object_points.shape[1] > config.num_object_points:
+            keep = downsample_indices(object_points, config.num_object_points)
+            object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
+        if scene_points.shape[1] > config.num_scene_points:
+            scene_points = gather_points(scene_points, downsample_indices(scene_points, config.num_scene_points))
+        return object_points, scene_points, goal_points
+
+    # ------------------------------------------------------------------------------ saving and loading
+    def _save_pretrained(self, save_directory: Path) -> None:
+        super()._save_pretrained(save_directory)
+        if self.metrics:
+            (Path(save_directory) / METRICS_FILE).write_text(json.dumps(self.metrics, indent=2))
+        self.generate_model_card(None, self.name, self.config.license, self.config.tags).save(
+            str(Path(save_directory) / "README.md")
+        )
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path, **kwargs):
+        policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
+        policy.metrics = _load_metrics(pretrained_name_or_path, kwargs)
+        return policy
+
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
+        card_data = ModelCardData(
+            license=license or "apache-2.0",
+            library_name="lerobot",
+            pipeline_tag="robotics",
+            tags=sorted(set(tags or []) | {"robotics", "lerobot", model_type, "point-cloud", "placement"}),
+            model_name=model_type,
+            datasets=dataset_repo_id,
+        )
+        return ModelCard(render_model_card(card_data.to_yaml(), self.config, self.metrics, dataset_repo_id))
+
+
+def _load_metrics(pretrained_name_or_path, kwargs: dict) -> dict:
+    """metrics.json beside the weights (local folder or Hub repo), or {} when there is none."""
+    path = Path(pretrained_name_or_path) / METRICS_FILE
+    if not Path(pretrained_name_or_path).is_dir():
+        try:
+            path = Path(
+                hf_hub_download(
+                    str(pretrained_name_or_path),
+                    METRICS_FILE,
+                    revision=kwargs.get("revision"),
+                    cache_dir=kwargs.get("cache_dir"),
+                    local_files_only=kwargs.get("local_files_only", False),
+                )
+            )
+        except (EntryNotFoundError, LocalEntryNotFoundError, OSError):
+            return {}
+    return json.loads(path.read_text()) if path.exists() else {}

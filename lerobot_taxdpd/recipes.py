@@ -1,0 +1,110 @@
+"""Training recipes, and the one way this package starts `lerobot-train` and its own command lines.
+
+A recipe is a `lerobot-train --config_path` file shipped inside the package (`lerobot_taxdpd/configs/*.json`),
+so it is found on any install, editable or not:
+
+    python -m lerobot_taxdpd.recipes list               # names, policy types and budgets
+    python -m lerobot_taxdpd.recipes path taxdpd_cpu    # the file, for `lerobot-train --config_path=...`
+
+Commands are recorded as a user types them (`lerobot-train ...`, `python -m ...`), in reports, metrics and
+`train_command.txt`, and `run` executes them with this interpreter, so the package's own LeRobot is used
+even where the environment's scripts are not on PATH.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+
+#: The shipped recipes: package data, a plain folder on every (non-zipped) install.
+RECIPE_DIR = Path(str(resources.files("lerobot_taxdpd") / "configs"))
+
+#: What a recorded command's first word runs as.
+_PROGRAMS = {
+    "lerobot-train": [sys.executable, "-m", "lerobot.scripts.lerobot_train"],
+    "python": [sys.executable],
+}
+
+
+def list_recipes() -> dict[str, Path]:
+    """Shipped recipe names -> their files."""
+    return {path.stem: path for path in sorted(RECIPE_DIR.glob("*.json"))}
+
+
+def recipe_path(name_or_path: str | Path) -> Path:
+    """A shipped recipe name (`taxdpd_cpu`) or the path of a config file -> the config file."""
+    path = Path(name_or_path).expanduser()
+    if path.is_file():
+        return path
+    shipped = list_recipes()
+    if str(name_or_path) in shipped:
+        return shipped[str(name_or_path)]
+    raise FileNotFoundError(
+        f"{name_or_path}: neither a config file nor a shipped recipe (shipped: {', '.join(shipped) or 'none'})"
+    )
+
+
+def train_command(
+    dataset: Path, repo_id: str, output_dir: Path, *, recipe: Path | None = None, flags: Sequence[str] = ()
+) -> list[str]:
+    """`lerobot-train` on a dataset folder, from a recipe file or none, with `flags` (`--policy.<field>=...`,
+    `--steps=...`, `--seed=...`) last so that they override the recipe."""
+    command = ["lerobot-train"]
+    if recipe is not None:
+        command.append(f"--config_path={recipe}")
+    command += [f"--dataset.repo_id={repo_id}", f"--dataset.root={dataset}", f"--output_dir={output_dir}"]
+    return command + list(flags)
+
+
+def run(
+    command: Sequence[str], *, log: Path | None = None, threads: int | None = None, cwd: Path | None = None
+) -> float:
+    """Run a recorded command line (`lerobot-train ...` or `python ...`) with this interpreter; returns its
+    wall time in seconds. `log` takes its output instead of the terminal; `threads` caps its OpenMP and MKL
+    threads, for several runs side by side. Raises `CalledProcessError` when it fails."""
+    if command[0] not in _PROGRAMS:
+        raise ValueError(f"cannot run {command[0]!r}: expected one of {sorted(_PROGRAMS)}")
+    argv = [*_PROGRAMS[command[0]], *map(str, command[1:])]
+    env = None if threads is None else {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    started = time.perf_counter()
+    if log is None:
+        subprocess.run(argv, check=True, env=env, cwd=cwd)
+    else:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with log.open("w") as stream:
+            subprocess.run(argv, stdout=stream, stderr=subprocess.STDOUT, check=True, env=env, cwd=cwd)
+    return time.perf_counter() - started
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m lerobot_taxdpd.recipes", description=__doc__.split("\n\n")[0])
+    verbs = parser.add_subparsers(dest="verb", required=True)
+    verbs.add_parser("list", help="shipped recipes with their policy type and budget")
+    path = verbs.add_parser("path", help="the file of a shipped recipe, for lerobot-train --config_path")
+    path.add_argument("name")
+    args = parser.parse_args(argv)
+    if args.verb == "path":
+        try:
+            print(recipe_path(args.name))
+        except FileNotFoundError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        return 0
+    for name, file in list_recipes().items():
+        recipe = json.loads(file.read_text())
+        print(
+            f"{name:<20} --policy.type={recipe['policy']['type']:<8} "
+            f"{recipe['steps']} steps, batch {recipe['batch_size']}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
