@@ -32,6 +32,7 @@ ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")
 SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
+SCENE_TOKENS = ("points", "centroids")
 
 
 def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
@@ -80,6 +81,9 @@ class TaxDPDConfig(PreTrainedConfig):
     sa_ratios: tuple[float, float] = (0.2, 0.25)
     sa_radii: tuple[float, float] = (1.5, 3.0)
     max_neighbors: int = 64
+    # DiT tokens of the scene: every point ("points", the paper), or the first set-abstraction level's
+    # centroids ("centroids": sa_ratios[0] of the points, interpolated back to every point where needed).
+    scene_tokens: str = "points"
 
     # ---- ablation switches (see module docstring)
     use_gmm: bool = True
@@ -135,6 +139,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"encoder: must be one of {ENCODERS}, got {self.encoder!r}")
         if self.local_diffusion not in LOCAL_DIFFUSIONS:
             raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
+        if self.scene_tokens not in SCENE_TOKENS:
+            raise ValueError(f"scene_tokens: must be one of {SCENE_TOKENS}, got {self.scene_tokens!r}")
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if self.rotation_head and (self.prediction_type != "sample" or not self.disentangled or self.local_diffusion != "point"):

@@ -55,7 +55,7 @@ class Grouping:
         )
 
 
-def _count(n: int, ratio: float) -> int:
+def centroid_count(n: int, ratio: float) -> int:
     return max(1, round(n * ratio))
 
 
@@ -66,8 +66,8 @@ def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> Sam
     offset = offset1 = 0
     for part in parts:
         part = part.float()
-        idx1 = farthest_point_sample(part, _count(part.shape[1], ratios[0]))
-        idx2 = farthest_point_sample(gather_points(part, idx1), _count(idx1.shape[1], ratios[1]))
+        idx1 = farthest_point_sample(part, centroid_count(part.shape[1], ratios[0]))
+        idx2 = farthest_point_sample(gather_points(part, idx1), centroid_count(idx1.shape[1], ratios[1]))
         level1.append(idx1 + offset)
         level2.append(idx2 + offset1)
         offset += part.shape[1]
@@ -110,7 +110,17 @@ def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, floa
         )
 
 
-def _interpolate(features: Tensor, weights: tuple[Tensor, Tensor]) -> Tensor:
+def centroid_tokens(xyz: Tensor, ratio: float, layout: SamplingLayout | None = None) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+    """The first set-abstraction level's centroids of `xyz` (B, M, 3) as token indices (B, M1), with the
+    3-NN weights that carry token values back to every point. Reuses `layout` when one was computed."""
+    if layout is None:
+        layout = sampling_layout([xyz], (ratio, ratio))
+    with torch.autocast(device_type=xyz.device.type, enabled=False):
+        return layout.level1, _three_nn(xyz.float(), gather_points(xyz.float(), layout.level1))
+
+
+def interpolate(features: Tensor, weights: tuple[Tensor, Tensor]) -> Tensor:
+    """Values at every point from values (B, M1, C) at its 3 nearest centroids (inverse-distance weights)."""
     idx, w = weights
     return (gather_points(features, idx) * w.unsqueeze(-1).to(features.dtype)).sum(-2)
 
@@ -186,8 +196,8 @@ class PointNet2Encoder(nn.Module):
         f2 = self.sa2(centres1, f1, centres2, grouping.neighbors2)
         global_feature = self.global_sa(torch.cat([centres2, f2], -1)).amax(dim=1, keepdim=True)
         f2 = self.fp_global(torch.cat([f2, global_feature.expand(-1, f2.shape[1], -1)], -1))
-        f1 = self.fp2(torch.cat([_interpolate(f2, grouping.to_level1), f1], -1))
-        return self.fp1(torch.cat([_interpolate(f1, grouping.to_points), point_features], -1))
+        f1 = self.fp2(torch.cat([interpolate(f2, grouping.to_level1), f1], -1))
+        return self.fp1(torch.cat([interpolate(f1, grouping.to_points), point_features], -1))
 
 
 class PointMLPEncoder(nn.Module):
