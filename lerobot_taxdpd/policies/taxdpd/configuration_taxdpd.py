@@ -33,6 +33,7 @@ LOCAL_DIFFUSIONS = ("point", "se3")
 SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 SCENE_TOKENS = ("points", "centroids")
+ROTATION_NOISES = ("paper", "signal")
 
 
 def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
@@ -105,6 +106,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # The clean shape as one rotation (from the frame token) of the initial object plus a per-point residual.
     rotation_head: bool = False
     rotation_noise_std_deg: float = 45.0
+    # "paper": R phi - phi added to the shape's noise (as published); "signal": the clean shape itself is
+    # turned inside the noisy sample, by an angle whose std shrinks with the remaining signal (needs
+    # prediction_type='sample': the target stays the unturned goal).
+    rotation_noise: str = "paper"
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
     sampler: str = "ddim"
     num_inference_steps: int = 10
@@ -139,6 +144,12 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"encoder: must be one of {ENCODERS}, got {self.encoder!r}")
         if self.local_diffusion not in LOCAL_DIFFUSIONS:
             raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
+        if self.rotation_noise not in ROTATION_NOISES:
+            raise ValueError(f"rotation_noise: must be one of {ROTATION_NOISES}, got {self.rotation_noise!r}")
+        if self.rotation_noise == "signal" and self.prediction_type != "sample":
+            raise ValueError("rotation_noise='signal': needs prediction_type='sample' (the target is the unturned goal)")
+        if self.local_diffusion == "se3" and self.rotation_noise == "signal":
+            raise ValueError("rotation_noise='signal': applies to point diffusion, not local_diffusion='se3'")
         if self.scene_tokens not in SCENE_TOKENS:
             raise ValueError(f"scene_tokens: must be one of {SCENE_TOKENS}, got {self.scene_tokens!r}")
         if self.prediction_type not in PREDICTION_TYPES:

@@ -156,6 +156,7 @@ class LocalDiffusion(nn.Module):
         self.training_scheduler = make_training_scheduler(config)
         self.sampling_scheduler = make_sampling_scheduler(config)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
+        self.rotation_noise = config.rotation_noise
 
     def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
@@ -167,11 +168,19 @@ class LocalDiffusion(nn.Module):
         """Denoising losses for clean goals (B, N, 3) in the placement frame, against the configured target."""
         param, scheduler = self.parameterization, self.training_scheduler
         clean = param.encode(goal, object_centred)
-        noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         device = generator.device if generator is not None else goal.device
         t = torch.randint(0, scheduler.config.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
         t = t.to(goal.device)
-        noisy = {k: scheduler.add_noise(clean[k], noise[k], t) for k in clean}
+        signal = clean
+        if self.rotation_noise == "signal" and self.rotation_noise_std > 0:
+            # The rotation perturbs the signal itself, by less as the noise fades, so that the last timestep
+            # is pure noise (where sampling starts) and the target stays the unturned goal.
+            noise_level = (1.0 - scheduler.alphas_cumprod.to(t.device)[t]).sqrt()
+            signal = param.turn_shape(clean, self.rotation_noise_std * noise_level, generator)
+            noise = param.sample_noise(clean, 0.0, generator)
+        else:
+            noise = param.sample_noise(clean, self.rotation_noise_std, generator)
+        noisy = {k: scheduler.add_noise(signal[k], noise[k], t) for k in clean}
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
         return param.loss(self._predict(self.denoiser.context(object_centred, scene), noisy, t), target)
 

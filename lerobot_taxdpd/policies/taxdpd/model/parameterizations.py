@@ -38,11 +38,18 @@ def _centre(x: Tensor) -> Tensor:
     return x - x.mean(dim=1, keepdim=True)
 
 
-def _rotation_noise(shape: Tensor, std: float, generator: torch.Generator | None) -> Tensor:
-    """R phi - phi for a random rotation R (axis uniform on S^2, angle ~ N(0, std^2)), per sample."""
+def _turned(shape: Tensor, std: float | Tensor, generator: torch.Generator | None) -> Tensor:
+    """R phi for a random rotation R per sample (axis uniform on S^2, angle ~ N(0, std^2); std may be (B,))."""
     device = generator.device if generator is not None else shape.device
+    if isinstance(std, Tensor):
+        std = std.to(device)
     rotation = random_axis_angle_rotation(shape.shape[0], std, generator=generator, device=device, dtype=shape.dtype)
-    return shape @ rotation.to(shape.device).transpose(-1, -2) - shape
+    return shape @ rotation.to(shape.device).transpose(-1, -2)
+
+
+def _rotation_noise(shape: Tensor, std: float, generator: torch.Generator | None) -> Tensor:
+    """R phi - phi: the paper's rotation noise, added to the Gaussian noise of the shape."""
+    return _turned(shape, std, generator) - shape
 
 
 class DisentangledPoints:
@@ -58,6 +65,10 @@ class DisentangledPoints:
         if rotation_std > 0:
             shape_noise = shape_noise + _rotation_noise(clean["shape"], rotation_std, generator)
         return {"frame": randn_like(clean["frame"], generator), "shape": shape_noise}
+
+    def turn_shape(self, clean: State, std: Tensor, generator=None) -> State:
+        """The clean goal with its shape turned about its centroid by a random rotation (angle std per sample)."""
+        return {"frame": clean["frame"], "shape": _turned(clean["shape"], std, generator)}
 
     def initial_state(self, object_centred: Tensor, generator=None) -> State:
         return self.project(
@@ -91,6 +102,10 @@ class JointPoints:
         if rotation_std > 0:
             noise = noise + _rotation_noise(_centre(clean["points"]), rotation_std, generator)
         return {"points": noise}
+
+    def turn_shape(self, clean: State, std: Tensor, generator=None) -> State:
+        centroid = clean["points"].mean(dim=1, keepdim=True)
+        return {"points": _turned(clean["points"] - centroid, std, generator) + centroid}
 
     def initial_state(self, object_centred: Tensor, generator=None) -> State:
         return {"points": randn_like(object_centred, generator)}
