@@ -1,32 +1,56 @@
-"""Training throughput and goal-sampling latency of the paper-size TAX-DPD model, against this machine's peak.
+"""Training and sampling speed of TAX-DPD against this machine's matmul peak, with where the time goes.
 
-For each point count of the paper (512/512, 512/1024, 256/1024) and each precision (fp32, bf16 autocast):
-training samples per second (forward + backward + AdamW, batch 16), goal-sampling latency for K = 1 and
-K = 10 samples of one scene with the default few-step DDIM sampler, the model's matmul FLOPs per training
-sample and per sampling call (counted by torch's FlopCounterMode), and the measured matmul peak of this
-machine, so the fraction of peak is visible. Prints everything with the machine and thread count and writes
-JSON.
+For each model (the shipped CPU recipe and the paper's size): one training step in the policy (forward,
+backward, AdamW; batch 16) with its breakdown by stage (Dense GMM, point encoders, DiTs, rest of the
+forward, backward, optimizer), the same step through `lerobot-train` (its own log's update and data
+times), FLOPs a sample (FlopCounterMode, attention counted on the math backend), the fraction of the
+matmul peak, and goal-sampling latency for K = 1 and K = 10. Medians of `--repeats`; machine, threads and
+config are printed beside the figures and written to JSON.
 
-    python benchmarks/speed.py                           # results/speed.json
-    python benchmarks/speed.py --configs 512x1024 --repeats 3 --threads 2
+    python benchmarks/speed.py                                  # results/speed.json
+    python benchmarks/speed.py --models cpu --repeats 7 --threads 2
+    python benchmarks/speed.py --models cpu --set scene_tokens=points use_amp=true   # a variant
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from contextlib import ExitStack
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
+from torch.profiler import ProfilerActivity, profile, record_function
 from torch.utils.flop_counter import FlopCounterMode
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
-from lerobot_taxdpd.apps.synthetic import make_slot_scene
+from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import PointMLPEncoder, PointNet2Encoder
+from lerobot_taxdpd.recipes import recipe_path
 from lerobot_taxdpd.reports.benchmarking import machine_info, timed, write_json
 
-# The authors' development code on this CPU (same batch and point counts), for comparison.
-REFERENCE = {"train_step_s_512x1024_batch16": 2.2, "sample_s_512x1024_k10": 48.0}
+# The authors' development code on this CPU (2 threads, idle; batch 16, 512/1024 points), for comparison.
+REFERENCE = {"local_step_s": 2.24, "gmm_step_s": 3.92, "both_steps_s": 6.16, "sample_k10_s": 48.1}
+PAPER = dict(hidden_dim=128, num_blocks=5, num_heads=4, max_neighbors=64, num_object_points=512, num_scene_points=1024)
+STAGES = {"gmm": "global_stage", "encoders": (PointNet2Encoder, PointMLPEncoder), "dit": DiT}
+
+
+def model_config(name: str, overrides: dict) -> dict:
+    if name == "paper":
+        fields = dict(PAPER, use_amp=True)
+    else:
+        recipe = json.loads(recipe_path("taxdpd_cpu").read_text())["policy"]
+        fields = {k: v for k, v in recipe.items() if k not in ("type", "device", "push_to_hub")}
+    return fields | overrides
 
 
 def matmul_gflops(dtype: torch.dtype, size: int, repeats: int) -> float:
@@ -35,9 +59,9 @@ def matmul_gflops(dtype: torch.dtype, size: int, repeats: int) -> float:
     return 2 * size**3 / median / 1e9
 
 
-def scenes(batch: int, num_object_points: int, num_scene_points: int) -> dict[str, torch.Tensor]:
+def slot_batch(batch: int, n_o: int, n_s: int) -> dict[str, torch.Tensor]:
     rng = np.random.default_rng(0)
-    data = [make_slot_scene(rng, num_object_points, num_scene_points) for _ in range(batch)]
+    data = [make_slot_scene(rng, n_o, n_s) for _ in range(batch)]
     return {
         OBJECT_KEY: torch.from_numpy(np.stack([d.object_points for d in data])),
         SCENE_KEY: torch.from_numpy(np.stack([d.scene_points for d in data])),
@@ -45,114 +69,179 @@ def scenes(batch: int, num_object_points: int, num_scene_points: int) -> dict[st
     }
 
 
+def stage_of(module_name: str, module: torch.nn.Module) -> str | None:
+    for stage, kind in STAGES.items():
+        if (isinstance(kind, str) and module_name.endswith(kind)) or (not isinstance(kind, str) and isinstance(module, kind)):
+            return stage
+    return None
+
+
+def label_stages(policy: TaxDPDPolicy, stack: ExitStack) -> None:
+    """Profiler labels around each stage's forward, removed when `stack` closes (the outermost labelled
+    scope takes the time: encoders inside the GMM count as GMM)."""
+    for name, module in policy.model.named_modules():
+        stage = stage_of(name, module)
+        if stage is None:
+            continue
+        scopes: list = []
+
+        def enter(_module, _inputs, stage=stage, scopes=scopes) -> None:
+            scopes.append(record_function(f"stage:{stage}"))
+            scopes[-1].__enter__()
+
+        def leave(_module, _inputs, _output, scopes=scopes) -> None:
+            scopes.pop().__exit__(None, None, None)
+
+        stack.callback(module.register_forward_pre_hook(enter).remove)
+        stack.callback(module.register_forward_hook(leave).remove)
+
+
+def breakdown(step, repeats: int) -> dict[str, float]:
+    """Seconds a step spends per stage (self time of labelled scopes; nested stages count once, outermost)."""
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(repeats):
+            step()
+    totals: dict[str, float] = {}
+    for event in prof.events():
+        if event.name.startswith("stage:") or event.name in ("forward", "backward", "optimizer"):
+            parent = event.cpu_parent
+            while parent is not None and not parent.name.startswith("stage:"):
+                parent = parent.cpu_parent
+            if parent is None:  # outermost labelled scope
+                totals[event.name] = totals.get(event.name, 0.0) + event.cpu_time_total / 1e6 / repeats
+    inner = sum(v for k, v in totals.items() if k.startswith("stage:"))
+    return {
+        **{k.removeprefix("stage:"): v for k, v in totals.items() if k.startswith("stage:")},
+        "other_forward": totals.get("forward", 0.0) - inner,
+        "backward": totals.get("backward", 0.0),
+        "optimizer": totals.get("optimizer", 0.0),
+    }
+
+
 def flops(run) -> float:
-    """Matmul FLOPs of one call. Attention runs on the math backend while counting, because the counter
-    has no formula for the CPU flash-attention kernel and would silently leave attention out."""
+    """Matmul FLOPs of one call, attention on the math backend (the counter has no CPU flash formula)."""
     with sdpa_kernel(SDPBackend.MATH), FlopCounterMode(display=False) as counter:
         run()
     return float(counter.get_total_flops())
 
 
-def benchmark(num_object_points: int, num_scene_points: int, amp: bool, args) -> dict:
+def policy_figures(fields: dict, args) -> dict:
     torch.manual_seed(0)
-    config = TaxDPDConfig.for_point_clouds(
-        num_object_points,
-        num_scene_points,
-        point_scale=66.0,
-        use_amp=amp,
-        device="cpu",
-        num_inference_steps=args.inference_steps,
-    )
-    policy = TaxDPDPolicy(config)
-    optimizer = torch.optim.AdamW(policy.parameters(), lr=1e-4)
-    batch = scenes(args.batch_size, num_object_points, num_scene_points)
+    config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
+    policy = TaxDPDPolicy(config).train()
+    optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
+    batch = slot_batch(args.batch_size, config.num_object_points, config.num_scene_points)
 
-    def train_step() -> None:
-        policy.train()
-        loss, _ = policy.forward(batch)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
+    def step() -> None:
+        with record_function("forward"):
+            loss, _ = policy.forward(batch)
+        with record_function("backward"):
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+        with record_function("optimizer"):
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), config.optimizer_grad_clip_norm)
+            optimizer.step()
 
-    step_s, step_times = timed(train_step, args.repeats)
-    train_flops = flops(train_step) / args.batch_size
+    step_s, step_times = timed(step, args.repeats)
+    gflop = flops(step) / args.batch_size / 1e9
+    with ExitStack() as stack:
+        label_stages(policy, stack)
+        stages = breakdown(step, max(2, args.repeats // 2))
     policy.eval()
     obj, scene = batch[OBJECT_KEY][:1], batch[SCENE_KEY][:1]
     sampling = {}
     for k in (1, 10):
         latency, times = timed(lambda k=k: policy.sample_goals(obj, scene, k), args.repeats)
-        sampling[f"K={k}"] = {
-            "latency_s": latency,
-            "all_s": times,
-            "gflop": flops(lambda k=k: policy.sample_goals(obj, scene, k)) / 1e9,
-        }
+        sampling[f"K={k}"] = {"latency_s": latency, "all_s": times}
     return {
-        "points": f"{num_object_points}/{num_scene_points}",
-        "precision": "bf16-autocast" if amp else "fp32",
-        "train": {
-            "batch_size": args.batch_size,
-            "step_s": step_s,
-            "all_step_s": step_times,
-            "samples_per_s": args.batch_size / step_s,
-            "gflop_per_sample": train_flops / 1e9,
-            "achieved_gflops": train_flops * args.batch_size / step_s / 1e9,
-        },
+        "step_s": step_s,
+        "all_step_s": step_times,
+        "samples_per_s": args.batch_size / step_s,
+        "gflop_per_sample": gflop,
+        "achieved_gflops": gflop * args.batch_size / step_s,
+        "stages_s": stages,
         "sampling": sampling,
     }
 
 
+def lerobot_train_figures(fields: dict, args) -> dict:
+    """Steps of `lerobot-train` on a slot dataset at the model's point counts; update/data times from its log."""
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "data"
+        write_slot_dataset(root, episodes=32, object_cloud_size=fields["num_object_points"],
+                           scene_cloud_size=fields["num_scene_points"], seed=0)
+        steps = args.train_steps
+        command = [
+            sys.executable, "-m", "lerobot.scripts.lerobot_train", "--policy.type=taxdpd", "--dataset.repo_id=local/speed",
+            f"--dataset.root={root}", "--policy.push_to_hub=false", "--policy.device=cpu",
+            *(f"--policy.{k}={json.dumps(v) if isinstance(v, list) else v}" for k, v in fields.items()),
+            f"--batch_size={args.batch_size}", f"--steps={steps}", f"--log_freq={steps // 2}",
+            f"--save_freq={10 * steps}", f"--num_workers={args.num_workers}", f"--output_dir={Path(tmp) / 'run'}",
+        ]
+        started = time.perf_counter()
+        finished = subprocess.run(command, capture_output=True, text=True, check=True)
+        wall = time.perf_counter() - started
+    logged = re.findall(r"updt_s:([\d.]+) data_s:([\d.]+)", finished.stdout + finished.stderr)
+    if not logged:
+        raise RuntimeError("lerobot-train's log has no updt_s/data_s line")
+    update_s, data_s = (float(x) for x in logged[-1])  # the second half of the run: past the warm-up
+    return {"steps": steps, "update_s": update_s, "data_s": data_s, "step_s": update_s + data_s,
+            "steps_per_s": 1.0 / (update_s + data_s), "wall_s_with_startup": wall, "num_workers": args.num_workers}
+
+
+def parse_overrides(tokens: list[str]) -> dict:
+    values = {}
+    for token in tokens:
+        key, _, text = token.partition("=")
+        try:
+            values[key] = json.loads(text)
+        except json.JSONDecodeError:
+            values[key] = text
+    return values
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--configs", default="512x512,512x1024,256x1024", help="object x scene point counts")
-    parser.add_argument("--precisions", default="fp32,bf16")
+    parser.add_argument("--models", default="cpu,paper", help="cpu (the shipped CPU recipe) and/or paper")
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="TaxDPDConfig overrides")
     parser.add_argument("--batch-size", type=int, default=16)
-    parser.add_argument("--inference-steps", type=int, default=TaxDPDConfig.num_inference_steps)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--train-steps", type=int, default=40, help="lerobot-train steps timed (0: skip)")
+    parser.add_argument("--num-workers", type=int, default=0, help="lerobot-train data workers")
+    parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--output", default="results/speed.json")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads)
+    overrides = parse_overrides(args.set)
 
-    peak = {
-        "fp32": matmul_gflops(torch.float32, 2048, args.repeats),
-        "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats),
-    }
+    peak = {"fp32": matmul_gflops(torch.float32, 2048, args.repeats), "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats)}
     machine = machine_info()
-    print(
-        f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
-        f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}"
-    )
+    print(f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
+          f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
     print(f"matmul peak (2048^3): fp32 {peak['fp32']:.0f} GFLOP/s, bf16 {peak['bf16']:.0f} GFLOP/s")
-    print(
-        f"model: paper size (hidden 128, 5 DiT blocks, 4 heads), batch {args.batch_size}, "
-        f"DDIM {args.inference_steps} steps"
-    )
     results = []
-    for spec in args.configs.split(","):
-        n_o, n_s = (int(x) for x in spec.split("x"))
-        for precision in args.precisions.split(","):
-            r = benchmark(n_o, n_s, precision == "bf16", args)
-            fraction = r["train"]["achieved_gflops"] / peak["bf16" if precision == "bf16" else "fp32"]
-            r["train"]["fraction_of_peak"] = fraction
-            results.append(r)
-            print(
-                f"{r['points']:>9} {r['precision']:>13}: train {r['train']['step_s']:.3f} s/step "
-                f"({r['train']['samples_per_s']:.1f} samples/s, {r['train']['gflop_per_sample']:.2f} GFLOP/sample, "
-                f"{r['train']['achieved_gflops']:.0f} GFLOP/s = {100 * fraction:.0f}% of peak) | "
-                f"sample K=1 {r['sampling']['K=1']['latency_s']:.3f} s, K=10 {r['sampling']['K=10']['latency_s']:.3f} s"
-            )
-    path = write_json(
-        args.output,
-        {
-            "machine": machine,
-            "matmul_peak_gflops": peak,
-            "config": vars(args),
-            "reference_authors_code": REFERENCE,
-            "results": results,
-        },
-    )
-    print(f"wrote {path}")
+    for name in args.models.split(","):
+        fields = model_config(name, overrides)
+        row = {"model": name, "config": fields, "policy": policy_figures(fields, args)}
+        p = row["policy"]
+        precision = "bf16" if fields.get("use_amp") else "fp32"
+        p["fraction_of_peak"] = p["achieved_gflops"] / peak[precision]
+        if args.train_steps:
+            row["lerobot_train"] = lerobot_train_figures(fields, args)
+        results.append(row)
+        stages = ", ".join(f"{k} {1000 * v:.0f}" for k, v in p["stages_s"].items())
+        print(f"{name} {json.dumps(fields)}")
+        print(f"  policy step {p['step_s']:.3f} s ({p['samples_per_s']:.1f} samples/s, {p['gflop_per_sample']:.2f} GFLOP/sample, "
+              f"{p['achieved_gflops']:.0f} GFLOP/s = {100 * p['fraction_of_peak']:.0f}% of the {precision} peak)")
+        print(f"  stages (ms): {stages}")
+        if "lerobot_train" in row:
+            t = row["lerobot_train"]
+            print(f"  lerobot-train: {t['step_s']:.3f} s/step ({t['steps_per_s']:.2f} steps/s; update {t['update_s']:.3f} s, "
+                  f"data {t['data_s']:.3f} s, {t['num_workers']} workers)")
+        print(f"  sampling: K=1 {p['sampling']['K=1']['latency_s']:.3f} s, K=10 {p['sampling']['K=10']['latency_s']:.3f} s")
+    path = write_json(args.output, {"machine": machine, "matmul_peak_gflops": peak, "arguments": vars(args),
+                                    "reference_authors_code": REFERENCE, "results": results})
+    print(f"wrote {path} (medians of {args.repeats}; the authors' code on this CPU: {REFERENCE})")
 
 
 if __name__ == "__main__":
