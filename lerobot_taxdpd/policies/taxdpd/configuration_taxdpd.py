@@ -103,8 +103,6 @@ class TaxDPDConfig(PreTrainedConfig):
     beta_start: float = 1e-4  # given for a 1000-step schedule and rescaled to num_train_timesteps
     beta_end: float = 0.02
     prediction_type: str = "epsilon"  # what the denoiser outputs: the noise, the clean goal, or v
-    # The clean shape as one rotation (from the frame token) of the initial object plus a per-point residual.
-    rotation_head: bool = False
     rotation_noise_std_deg: float = 45.0
     # "paper": R phi - phi added to the shape's noise (as published); "signal": the clean shape itself is
     # turned inside the noisy sample, by an angle whose std shrinks with the remaining signal (needs
@@ -154,8 +152,6 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"scene_tokens: must be one of {SCENE_TOKENS}, got {self.scene_tokens!r}")
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
-        if self.rotation_head and (self.prediction_type != "sample" or not self.disentangled or self.local_diffusion != "point"):
-            raise ValueError("rotation_head: needs prediction_type='sample' with the disentangled point diffusion")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler: must be one of {SAMPLERS}, got {self.sampler!r}")
         if self.local_diffusion == "se3" and not self.disentangled:

@@ -160,7 +160,7 @@ class LocalDiffusion(nn.Module):
 
     def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
-        return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t), context.object_centred)
+        return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t))
 
     def loss(
         self, object_centred: Tensor, scene: Tensor, goal: Tensor, generator: torch.Generator | None = None

@@ -7,9 +7,6 @@ denoiser's outputs as predicted noise (`split`). The scheduler treats every vari
 - `DisentangledPoints` (TAX-DPD): a frame rho (B, 1, 3) = goal centroid and a zero-mean shape phi (B, N, 3).
 - `JointPoints` ("w/o disentangled point diffusion"): the goal points (B, N, 3) diffused as one variable.
 - `SE3Pose` ("w/ SE(3) diffusion"): the frame plus a 6-D rotation (B, 1, 6) applied to the initial object.
-- `RigidShapeHead`: TAX-DPD's variables, but the denoiser's clean-shape estimate is a rotation R (read from
-  the frame token) applied to the initial object, plus the point head's per-point residual. The one global
-  rotation is what a rigid goal shape is; deformations stay possible through the residual.
 """
 
 from __future__ import annotations
@@ -81,7 +78,7 @@ class DisentangledPoints:
     def compose(self, state: State, object_centred: Tensor) -> tuple[Tensor, Tensor]:
         return state["shape"] + state["frame"], state["shape"]
 
-    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         return {"frame": frame_out.unsqueeze(1), "shape": _centre(point_out)}
 
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
@@ -116,7 +113,7 @@ class JointPoints:
     def compose(self, state: State, object_centred: Tensor) -> tuple[Tensor, Tensor]:
         return state["points"], _centre(state["points"])
 
-    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         return {"points": point_out}
 
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
@@ -149,7 +146,7 @@ class SE3Pose:
         shape = object_centred @ rotation.transpose(-1, -2)
         return shape + state["frame"], shape
 
-    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
+    def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         return {"frame": frame_out[:, None, :3], "rotation": frame_out[:, None, 3:]}
 
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
@@ -158,21 +155,7 @@ class SE3Pose:
         return {"loss_local": 0.5 * frame + 0.5 * rotation, "loss_frame": frame, "loss_rotation": rotation}
 
 
-_IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
-
-
-class RigidShapeHead(DisentangledPoints):
-    frame_dim = 9
-
-    def split(self, point_out: Tensor | None, frame_out: Tensor | None, object_centred: Tensor) -> State:
-        rotation = rotation_6d_to_matrix(frame_out[:, 3:] + frame_out.new_tensor(_IDENTITY_6D))
-        shape = object_centred.to(rotation.dtype) @ rotation.transpose(-1, -2) + point_out
-        return {"frame": frame_out[:, None, :3], "shape": _centre(shape)}
-
-
 def make_parameterization(config) -> DisentangledPoints | JointPoints | SE3Pose:
     if config.local_diffusion == "se3":
         return SE3Pose()
-    if not config.disentangled:
-        return JointPoints()
-    return RigidShapeHead() if config.rotation_head else DisentangledPoints()
+    return DisentangledPoints() if config.disentangled else JointPoints()
