@@ -1,96 +1,168 @@
-"""How well the paper-size TAX-DPD model places the keyed box against training time, on this machine.
+"""Learning curves through `lerobot-train`: held-out quality of every saved checkpoint against training CPU time.
 
-Trains the paper's architecture (hidden 128, 5 DiT blocks, 4 heads) with `lerobot-train` on the two-slot
-task at the paper's 512/1024 point counts (bf16 autocast by default), keeps a checkpoint every
-`--save-every` steps, then scores each one on held-out scenes: per-point RMSE, winner-take-all RMSE over K,
-translation and rotation errors, coverage of both slots and the GMM's mass on the slots. Each row carries
-the wall time of training up to that checkpoint. Prints the machine and writes JSON.
+Trains a recipe (default: the shipped CPU recipe, `--set` overrides any policy field) on a task's demos,
+keeping a checkpoint every `--save-every` steps, then scores each one on held-out scenes:
+- `--task slots`: the synthetic two-slot task at full yaw (rotation, translation, coverage, GMM mass);
+- a procedural task (`mug_easyrack`, `insert_waterproof`, ...): the pybullet harness on held-out geometry
+  (success with its interval, translation and rotation errors).
+Beside every row: the equivariance probe (goal turn when the scene alone, the object alone, or a tilt of the
+object alone, is applied; ideal +20, 0, 0 deg) and, once, the trivial baselines (copy the start orientation,
+the mean goal orientation; both at the true position). CPU time is the training process's own (user + sys).
 
-    python benchmarks/learning_curve.py                          # results/learning_curve.json
-    python benchmarks/learning_curve.py --steps 600 --save-every 200 --object-cloud-size 256
+    python benchmarks/learning_curve.py --task slots --steps 3000 --save-every 500
+    python benchmarks/learning_curve.py --task insert_waterproof --dataset data/iw --steps 8000 --save-every 2000 \\
+        --set start_tilt_range=15 --output results/curve_iw.json
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
-import time
+import json
+import math
+import resource
+import shutil
 from pathlib import Path
 
+import numpy as np
 import torch
 
-from lerobot_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.apps.slot_demo import parse_args as demo_arguments
-from lerobot_taxdpd.apps.slot_demo import prepare_output, train
-from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, write_slot_dataset
+from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
+from lerobot_taxdpd.goal_predictors import load_goal_predictor
+from lerobot_taxdpd.maths.equivariance import goal_turn_response
+from lerobot_taxdpd.maths.metrics import rotation_error_deg
+from lerobot_taxdpd.recipes import recipe_path, run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+
+SLOT_POINTS = (64, 128)
+
+
+def children_cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def make_dataset(args) -> Path:
+    root = args.dataset or args.work_dir / "data"
+    if (root / "meta" / "info.json").is_file():
+        return root
+    if args.task == "slots":
+        return write_slot_dataset(root, episodes=args.episodes, object_cloud_size=SLOT_POINTS[0],
+                                  scene_cloud_size=SLOT_POINTS[1], yaw_range=math.pi, seed=0)
+    from lerobot_taxdpd.sim.generate import generate_dataset
+    from lerobot_taxdpd.sim.tasks import get_task
+
+    return generate_dataset(get_task(args.task), episodes=args.episodes, split="train", repo_id=f"local/{args.task}", root=root)
+
+
+class HeldOut:
+    """The held-out scenes of a task, their baselines, and how a checkpoint is scored on them."""
+
+    def __init__(self, args) -> None:
+        self.args = args
+        if args.task == "slots":
+            rng = np.random.default_rng(args.eval_seed)
+            self.scenes = [make_slot_scene(rng, *SLOT_POINTS, math.pi) for _ in range(8)]
+        else:
+            from lerobot_taxdpd.sim.tasks import get_task
+            from lerobot_taxdpd.sim.trials import make_trial
+
+            self.task = get_task(args.task)
+            self.trials = [make_trial(self.task, seed, "test") for seed in range(args.eval_seed, args.eval_seed + args.trials)]
+            self.scenes = self.trials[:8]
+
+    def probe_clouds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return (torch.from_numpy(np.stack([s.object_points for s in self.scenes])),
+                torch.from_numpy(np.stack([s.scene_points for s in self.scenes])))
+
+    def baselines(self) -> dict:
+        if self.args.task == "slots":
+            copies = [min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals)
+                      for s in self.scenes]
+            return {"copy_start": {"rotation_error_deg": float(np.median(copies))},
+                    "mean_pose": {"rotation_error_deg": 90.0, "note": "uniform goal yaw: any fixed orientation is 90 deg off at the median"}}
+        from lerobot_taxdpd.sim.harness import evaluate
+        from lerobot_taxdpd.sim.predictors import OraclePredictor
+
+        rows = {}
+        for name, orientation in (("copy_start", "start"), ("mean_pose", "mean")):
+            report = evaluate(OraclePredictor(self.trials, orientation=orientation), self.trials, 1, progress=False)
+            rows[name] = summarise(report)
+        return rows
+
+    def score(self, policy) -> dict:
+        if self.args.task == "slots":
+            row = evaluate_slot_predictor(policy, num_scenes=self.args.trials, num_samples=self.args.samples,
+                                          num_object_points=SLOT_POINTS[0], num_scene_points=SLOT_POINTS[1],
+                                          yaw_range=math.pi, seed=self.args.eval_seed, generator=torch.Generator().manual_seed(0))
+        else:
+            from lerobot_taxdpd.sim.harness import evaluate
+
+            row = summarise(evaluate(policy, self.trials, self.args.samples, progress=False))
+        obj, scene = self.probe_clouds()
+        period = 180.0 if self.args.task.startswith(("mug", "book")) else None  # mirror-symmetric hang/flip
+        turns = goal_turn_response(policy, obj, scene, num_samples=2, symmetry_period_deg=period)
+        return row | {f"turn_{k}_deg": v for k, v in turns.items()}
+
+
+def summarise(report: dict) -> dict:
+    row = {"success_rate": report["success"]["success_rate"], "ci95": [report["success"]["ci95_low"], report["success"]["ci95_high"]],
+           "translation_error_mm": report["translation_error_mm"]["median"], "rotation_error_deg": report["rotation_error_deg"]["median"]}
+    for key in ("gripper_translation_error_mm", "gripper_rotation_error_deg"):
+        if key in report:
+            row[key] = report[key]["median"]
+    return row
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--save-every", type=int, default=250)
-    parser.add_argument("--episodes", type=int, default=256)
-    parser.add_argument("--object-cloud-size", type=int, default=512, help="object points per cloud of the data")
-    parser.add_argument("--scene-cloud-size", type=int, default=1024, help="scene points per cloud of the data")
-    parser.add_argument("--yaw-range", type=float, default=0.5)
-    parser.add_argument("--lr", type=float, default=1e-3)
-    parser.add_argument("--fp32", action="store_true", help="train in fp32 instead of bf16 autocast")
-    parser.add_argument("--scenes", type=int, default=24, help="held-out scenes per checkpoint")
-    parser.add_argument("--samples", type=int, default=10, help="K goals per scene")
-    parser.add_argument("--work-dir", type=Path, default=Path("results/learning_curve"))
-    parser.add_argument("--output", default="results/learning_curve.json")
+    parser.add_argument("--task", default="slots", help="'slots' or a procedural task name")
+    parser.add_argument("--dataset", type=Path, default=None, help="an existing dataset (default: made in --work-dir)")
+    parser.add_argument("--episodes", type=int, default=200, help="demos to generate when there is no dataset")
+    parser.add_argument("--recipe", default="taxdpd_cpu")
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="policy overrides, e.g. hidden_dim=64")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--save-every", type=int, default=500)
+    parser.add_argument("--batch-size", type=int, default=None)
+    parser.add_argument("--seed", type=int, default=0, help="training seed")
+    parser.add_argument("--threads", type=int, default=1, help="training threads (OMP_NUM_THREADS)")
+    parser.add_argument("--trials", type=int, default=30, help="held-out trials (scenes) per checkpoint")
+    parser.add_argument("--samples", type=int, default=10, help="K goals per trial")
+    parser.add_argument("--eval-seed", type=int, default=1000)
+    parser.add_argument("--work-dir", type=Path, default=None)
+    parser.add_argument("--output", type=Path, default=None)
     args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    name = args.output.stem if args.output else f"curve_{args.task}"
+    args.work_dir = args.work_dir or Path("results") / name
+    args.output = args.output or Path("results") / f"{name}.json"
 
-    run = demo_arguments(
-        [
-            "--output", str(args.work_dir), "--episodes", str(args.episodes), "--steps", str(args.steps),
-            "--yaw-range", str(args.yaw_range), "--hidden-dim", "128", "--num-blocks", "5", "--lr", str(args.lr),
-            "--object-cloud-size", str(args.object_cloud_size), "--scene-cloud-size", str(args.scene_cloud_size),
-        ]
-    )
-    prepare_output(run.output)
-    dataset = write_slot_dataset(
-        run.output / "data", episodes=run.episodes, object_cloud_size=run.object_cloud_size,
-        scene_cloud_size=run.scene_cloud_size, yaw_range=run.yaw_range, seed=0,
-    )
-    started = time.time()
-    _, command, train_seconds = train(run, dataset, save_freq=args.save_every, use_amp=not args.fp32)
-    # The demo marker lets a later run reuse the folder (prepare_output refuses foreign folders).
-    write_json(run.output / "metrics.json", {"arguments": {k: str(v) for k, v in vars(run).items()}})
+    dataset = make_dataset(args)
+    run_dir = args.work_dir / "train"
+    if run_dir.exists():
+        shutil.rmtree(run_dir)
+    flags = [f"--policy.{token}" for token in args.set] + [
+        f"--steps={args.steps}", f"--save_freq={args.save_every}", f"--log_freq={args.save_every}",
+        "--num_workers=0", f"--seed={args.seed}",
+    ] + ([f"--batch_size={args.batch_size}"] if args.batch_size else [])
+    command = train_command(dataset, f"local/{args.task}", run_dir, recipe=recipe_path(args.recipe), flags=flags)
+    print(" ".join(command), flush=True)
+    cpu_before = children_cpu_seconds()
+    wall = run(command, log=args.work_dir / "train.log", threads=args.threads)
+    cpu_minutes = (children_cpu_seconds() - cpu_before) / 60
 
-    machine = machine_info()
-    print(f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
-          f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
-    task = dict(
-        num_scenes=args.scenes, num_samples=args.samples, num_object_points=run.object_cloud_size,
-        num_scene_points=run.scene_cloud_size, yaw_range=run.yaw_range,
-    )
+    held_out = HeldOut(args)
+    baselines = held_out.baselines()
+    print(json.dumps({"baselines": baselines}), flush=True)
     rows = []
-    for checkpoint in sorted((run.output / "train" / "checkpoints").glob("[0-9]*")):
-        model_dir = checkpoint / "pretrained_model"
-        policy = TaxDPDPolicy.from_pretrained(model_dir)
-        metrics = evaluate_slot_predictor(policy, **task, generator=torch.Generator().manual_seed(0))
-        row = {
-            "step": int(checkpoint.name),
-            "train_seconds": (model_dir / "model.safetensors").stat().st_mtime - started,
-            **metrics,
-        }
+    for checkpoint in sorted((run_dir / "checkpoints").glob("[0-9]*"), key=lambda p: int(p.name)):
+        step = int(checkpoint.name)
+        policy = load_goal_predictor(checkpoint / "pretrained_model")
+        row = {"step": step, "cpu_minutes": cpu_minutes * step / args.steps} | held_out.score(policy)
         rows.append(row)
-        print(
-            f"step {row['step']:>5} ({row['train_seconds'] / 60:5.1f} min): RMSE {row['rmse_mm']:.1f} mm, "
-            f"WTA RMSE {row['wta_rmse_mm']:.1f} mm, translation {row['translation_error_mm']:.1f} mm, "
-            f"rotation {row['rotation_error_deg']:.1f} deg, "
-            f"coverage@{args.samples} {row[f'coverage@{args.samples}']:.2f}, "
-            f"GMM mass on slots {row.get('gmm_mass_on_slots', float('nan')):.2f}"
-        )
-    payload = {
-        "machine": machine,
-        "config": vars(args) | {"work_dir": str(args.work_dir)},
-        "train_seconds": train_seconds,
-        "train_command": shlex.join(map(str, command)),
-        "results": rows,
-    }
+        print(json.dumps(row), flush=True)
+    payload = {"machine": machine_info(), "arguments": {k: str(v) for k, v in vars(args).items()},
+               "train_command": " ".join(command), "train_wall_seconds": wall, "train_cpu_minutes": cpu_minutes,
+               "baselines": baselines, "rows": rows}
     print(f"wrote {write_json(args.output, payload)}")
 
 

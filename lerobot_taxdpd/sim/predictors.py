@@ -8,7 +8,10 @@ the pose it executes and the cloud it scores are always the same prediction. A p
 
 `OraclePredictor` is the benchmark's own reference: it answers with the ground truth of the trials it
 was built from, optionally off by a rigid error of fixed size. It calibrates the success checks
-(ground truth must succeed, tolerance-sized errors must fail) and bounds what a model can reach.
+(ground truth must succeed, tolerance-sized errors must fail) and bounds what a model can reach. With
+`orientation="start"` or `"mean"` it keeps the true goal position but turns the object the trivial way
+(as it starts, or into the mean goal orientation of those trials): the baselines an orientation-aware
+model must beat.
 """
 
 from __future__ import annotations
@@ -72,6 +75,16 @@ def as_goal_predictor(predictor: object, origin: str = "predictor") -> GoalPredi
     )
 
 
+#: How `OraclePredictor` turns the object: as demonstrated, as it starts, or into the trials' mean goal orientation.
+ORIENTATIONS = ("goal", "start", "mean")
+
+
+def _mean_rotation(rotations: list[np.ndarray]) -> np.ndarray:
+    """The rotation nearest (chordal distance) to the average of rotation matrices."""
+    u, _, vt = np.linalg.svd(np.mean(rotations, axis=0))
+    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
 def _cloud_key(points: np.ndarray) -> str:
     return hashlib.sha1(np.ascontiguousarray(points, dtype=np.float32).tobytes()).hexdigest()
 
@@ -85,16 +98,31 @@ class OraclePredictor:
     axis through its centroid. Trials are recognised by their object cloud.
     """
 
-    def __init__(self, trials: Iterable[Trial], translation: float = 0.0, rotation_deg: float = 0.0, seed: int = 0):
+    def __init__(
+        self,
+        trials: Iterable[Trial],
+        translation: float = 0.0,
+        rotation_deg: float = 0.0,
+        seed: int = 0,
+        orientation: str = "goal",
+    ):
         if translation < 0 or rotation_deg < 0:
             raise ValueError(f"oracle error must be non-negative, got {translation} m and {rotation_deg} deg")
+        if orientation not in ORIENTATIONS:
+            raise ValueError(f"orientation: must be one of {ORIENTATIONS}, got {orientation!r}")
         self.translation = translation
         self.rotation_deg = rotation_deg
         self._rng = np.random.default_rng(seed)
         self._goals: dict[str, list[np.ndarray]] = {}
+        trials = list(trials)
+        mean_rotation = _mean_rotation([(t.goal_transform @ t.start_pose)[:3, :3] for t in trials])
         for trial in trials:
             demo = trial.goal_transform
             others = [t[0] for t in trial.valid_transforms() if not any(np.allclose(demo, v) for v in t)]
+            if orientation != "goal":  # the demonstrated position, a trivially chosen orientation
+                turn = np.eye(3) if orientation == "start" else mean_rotation @ trial.start_pose[:3, :3].T
+                centre = trial.object_points.astype(np.float64).mean(0)
+                demo, others = transform(turn, transform_points(demo, centre) - turn @ centre), []
             self._goals[_cloud_key(trial.object_points)] = [
                 transform_points(t, trial.object_points.astype(np.float64)) for t in (demo, *others)
             ]
