@@ -97,6 +97,7 @@ class TaxDPDConfig(PreTrainedConfig):
     # ---- global stage: Dense GMM
     gmm_variance: float = 0.3  # fixed component variance (model units^2)
     gmm_uniform_weight: float = 0.1  # weight of the NLL under uniform mixing weights (keeps components useful)
+    gmm_batch_fraction: float = 1.0  # share of each batch the Dense GMM trains on (it converges early)
 
     # ---- local stage: disentangled DDPM
     num_train_timesteps: int = 100
@@ -148,6 +149,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError("rotation_noise='signal': needs prediction_type='sample' (the target is the unturned goal)")
         if self.local_diffusion == "se3" and self.rotation_noise == "signal":
             raise ValueError("rotation_noise='signal': applies to point diffusion, not local_diffusion='se3'")
+        if not 0.0 < self.gmm_batch_fraction <= 1.0:
+            raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.scene_tokens not in SCENE_TOKENS:
             raise ValueError(f"scene_tokens: must be one of {SCENE_TOKENS}, got {self.scene_tokens!r}")
         if self.prediction_type not in PREDICTION_TYPES:

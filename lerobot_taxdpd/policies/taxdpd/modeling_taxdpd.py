@@ -72,8 +72,11 @@ class TaxDPDModel(nn.Module):
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
         if self.global_stage is not None:
-            logits, means = self._gmm(object_points, scene_points)
-            losses["loss_gmm"] = self.global_stage.loss(logits, means, target)
+            # The Dense GMM learns from the first part of the (shuffled) batch only: it converges long before
+            # the local stage, so the rest of its share of the step is better spent on the local stage.
+            n = max(1, round(target.shape[0] * self.config.gmm_batch_fraction))
+            logits, means = self._gmm(object_points[:n], scene_points[:n])
+            losses["loss_gmm"] = self.global_stage.loss(logits, means, target[:n])
             frame = target + randn_like(target) * self.config.frame_noise_std
         else:
             frame = torch.zeros_like(target)  # the scene centroid
