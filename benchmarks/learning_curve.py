@@ -46,12 +46,20 @@ def make_dataset(args) -> Path:
     if (root / "meta" / "info.json").is_file():
         return root
     if args.task == "slots":
-        return write_slot_dataset(root, episodes=args.episodes, object_cloud_size=SLOT_POINTS[0],
-                                  scene_cloud_size=SLOT_POINTS[1], yaw_range=math.pi, seed=0)
+        return write_slot_dataset(
+            root,
+            episodes=args.episodes,
+            object_cloud_size=SLOT_POINTS[0],
+            scene_cloud_size=SLOT_POINTS[1],
+            yaw_range=math.pi,
+            seed=0,
+        )
     from lerobot_taxdpd.sim.generate import generate_dataset
     from lerobot_taxdpd.sim.tasks import get_task
 
-    return generate_dataset(get_task(args.task), episodes=args.episodes, split="train", repo_id=f"local/{args.task}", root=root)
+    return generate_dataset(
+        get_task(args.task), episodes=args.episodes, split="train", repo_id=f"local/{args.task}", root=root
+    )
 
 
 class HeldOut:
@@ -67,19 +75,33 @@ class HeldOut:
             from lerobot_taxdpd.sim.trials import make_trial
 
             self.task = get_task(args.task)
-            self.trials = [make_trial(self.task, seed, "test") for seed in range(args.eval_seed, args.eval_seed + args.trials)]
+            self.trials = [
+                make_trial(self.task, seed, "test") for seed in range(args.eval_seed, args.eval_seed + args.trials)
+            ]
             self.scenes = self.trials[:8]
 
     def probe_clouds(self) -> tuple[torch.Tensor, torch.Tensor]:
-        return (torch.from_numpy(np.stack([s.object_points for s in self.scenes])),
-                torch.from_numpy(np.stack([s.scene_points for s in self.scenes])))
+        return (
+            torch.from_numpy(np.stack([s.object_points for s in self.scenes])),
+            torch.from_numpy(np.stack([s.scene_points for s in self.scenes])),
+        )
 
     def baselines(self) -> dict:
         if self.args.task == "slots":
-            copies = [min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals)
-                      for s in self.scenes]
-            return {"copy_start": {"rotation_error_deg": float(np.median(copies))},
-                    "mean_pose": {"rotation_error_deg": 90.0, "note": "uniform goal yaw: any fixed orientation is 90 deg off at the median"}}
+            copies = [
+                min(
+                    float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g))
+                    for g in s.valid_goals
+                )
+                for s in self.scenes
+            ]
+            return {
+                "copy_start": {"rotation_error_deg": float(np.median(copies))},
+                "mean_pose": {
+                    "rotation_error_deg": 90.0,
+                    "note": "uniform goal yaw: any fixed orientation is 90 deg off at the median",
+                },
+            }
         from lerobot_taxdpd.sim.harness import evaluate
         from lerobot_taxdpd.sim.predictors import OraclePredictor
 
@@ -91,9 +113,16 @@ class HeldOut:
 
     def score(self, policy) -> dict:
         if self.args.task == "slots":
-            row = evaluate_slot_predictor(policy, num_scenes=self.args.trials, num_samples=self.args.samples,
-                                          num_object_points=SLOT_POINTS[0], num_scene_points=SLOT_POINTS[1],
-                                          yaw_range=math.pi, seed=self.args.eval_seed, generator=torch.Generator().manual_seed(0))
+            row = evaluate_slot_predictor(
+                policy,
+                num_scenes=self.args.trials,
+                num_samples=self.args.samples,
+                num_object_points=SLOT_POINTS[0],
+                num_scene_points=SLOT_POINTS[1],
+                yaw_range=math.pi,
+                seed=self.args.eval_seed,
+                generator=torch.Generator().manual_seed(0),
+            )
         else:
             from lerobot_taxdpd.sim.harness import evaluate
 
@@ -105,8 +134,12 @@ class HeldOut:
 
 
 def summarise(report: dict) -> dict:
-    row = {"success_rate": report["success"]["success_rate"], "ci95": [report["success"]["ci95_low"], report["success"]["ci95_high"]],
-           "translation_error_mm": report["translation_error_mm"]["median"], "rotation_error_deg": report["rotation_error_deg"]["median"]}
+    row = {
+        "success_rate": report["success"]["success_rate"],
+        "ci95": [report["success"]["ci95_low"], report["success"]["ci95_high"]],
+        "translation_error_mm": report["translation_error_mm"]["median"],
+        "rotation_error_deg": report["rotation_error_deg"]["median"],
+    }
     for key in ("gripper_translation_error_mm", "gripper_rotation_error_deg"):
         if key in report:
             row[key] = report[key]["median"]
@@ -119,7 +152,9 @@ def main() -> None:
     parser.add_argument("--dataset", type=Path, default=None, help="an existing dataset (default: made in --work-dir)")
     parser.add_argument("--episodes", type=int, default=200, help="demos to generate when there is no dataset")
     parser.add_argument("--recipe", default="taxdpd_cpu")
-    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="policy overrides, e.g. hidden_dim=64")
+    parser.add_argument(
+        "--set", nargs="*", default=[], metavar="FIELD=VALUE", help="policy overrides, e.g. hidden_dim=64"
+    )
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--save-every", type=int, default=500)
     parser.add_argument("--batch-size", type=int, default=None)
@@ -140,10 +175,17 @@ def main() -> None:
     run_dir = args.work_dir / "train"
     if run_dir.exists():
         shutil.rmtree(run_dir)
-    flags = [f"--policy.{token}" for token in args.set] + [
-        f"--steps={args.steps}", f"--save_freq={args.save_every}", f"--log_freq={args.save_every}",
-        "--num_workers=0", f"--seed={args.seed}",
-    ] + ([f"--batch_size={args.batch_size}"] if args.batch_size else [])
+    flags = (
+        [f"--policy.{token}" for token in args.set]
+        + [
+            f"--steps={args.steps}",
+            f"--save_freq={args.save_every}",
+            f"--log_freq={args.save_every}",
+            "--num_workers=0",
+            f"--seed={args.seed}",
+        ]
+        + ([f"--batch_size={args.batch_size}"] if args.batch_size else [])
+    )
     command = train_command(dataset, f"local/{args.task}", run_dir, recipe=recipe_path(args.recipe), flags=flags)
     print(" ".join(command), flush=True)
     cpu_before = children_cpu_seconds()
@@ -160,9 +202,15 @@ def main() -> None:
         row = {"step": step, "cpu_minutes": cpu_minutes * step / args.steps} | held_out.score(policy)
         rows.append(row)
         print(json.dumps(row), flush=True)
-    payload = {"machine": machine_info(), "arguments": {k: str(v) for k, v in vars(args).items()},
-               "train_command": " ".join(command), "train_wall_seconds": wall, "train_cpu_minutes": cpu_minutes,
-               "baselines": baselines, "rows": rows}
+    payload = {
+        "machine": machine_info(),
+        "arguments": {k: str(v) for k, v in vars(args).items()},
+        "train_command": " ".join(command),
+        "train_wall_seconds": wall,
+        "train_cpu_minutes": cpu_minutes,
+        "baselines": baselines,
+        "rows": rows,
+    }
     print(f"wrote {write_json(args.output, payload)}")
 
 

@@ -77,15 +77,29 @@ def slot_data(episodes: int, frames: int, n_o: int, n_s: int, yaw_range: float, 
 def baselines(args) -> dict[str, float]:
     """Median rotation error of copying the start orientation, and of the mean pose (slot-frame mean)."""
     rng = np.random.default_rng(args.eval_seed)
-    scenes = [make_slot_scene(rng, args.num_object_points, args.num_scene_points, args.yaw_range) for _ in range(args.scenes)]
-    copy = [min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals) for s in scenes]
-    return {"copy_start_rotation_deg": float(np.median(copy)), "mean_pose_rotation_deg": 90.0 if args.yaw_range >= math.pi else float("nan")}
+    scenes = [
+        make_slot_scene(rng, args.num_object_points, args.num_scene_points, args.yaw_range) for _ in range(args.scenes)
+    ]
+    copy = [
+        min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals)
+        for s in scenes
+    ]
+    return {
+        "copy_start_rotation_deg": float(np.median(copy)),
+        "mean_pose_rotation_deg": 90.0 if args.yaw_range >= math.pi else float("nan"),
+    }
 
 
 def evaluate(policy, args) -> dict[str, float]:
     policy.eval()
-    task = dict(num_scenes=args.scenes, num_samples=args.samples, num_object_points=args.num_object_points,
-                num_scene_points=args.num_scene_points, yaw_range=args.yaw_range, seed=args.eval_seed)
+    task = dict(
+        num_scenes=args.scenes,
+        num_samples=args.samples,
+        num_object_points=args.num_object_points,
+        num_scene_points=args.num_scene_points,
+        yaw_range=args.yaw_range,
+        seed=args.eval_seed,
+    )
     metrics = evaluate_slot_predictor(policy, **task, generator=torch.Generator().manual_seed(0))
     rng = np.random.default_rng(args.eval_seed + 1)
     probe = [make_slot_scene(rng, args.num_object_points, args.num_scene_points, args.yaw_range) for _ in range(8)]
@@ -98,7 +112,9 @@ def evaluate(policy, args) -> dict[str, float]:
 
 def train_variant(name: str, overrides: dict, seed: int, data: dict, args) -> list[dict]:
     torch.manual_seed(seed)
-    config = TaxDPDConfig.for_point_clouds(args.num_object_points, args.num_scene_points, device="cpu", **(BASE | overrides))
+    config = TaxDPDConfig.for_point_clouds(
+        args.num_object_points, args.num_scene_points, device="cpu", **(BASE | overrides)
+    )
     config.point_scale = config.object_scale / float(object_radius(data[OBJECT_KEY].double()).median())
     policy = TaxDPDPolicy(config).train()
     optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
@@ -117,7 +133,13 @@ def train_variant(name: str, overrides: dict, seed: int, data: dict, args) -> li
         scheduler.step()
         cpu += time.process_time() - started
         if step % args.eval_every == 0 or step == args.steps:
-            row = {"variant": name, "seed": seed, "step": step, "cpu_minutes": cpu / 60, "loss": float(loss)} | evaluate(policy, args)
+            row = {
+                "variant": name,
+                "seed": seed,
+                "step": step,
+                "cpu_minutes": cpu / 60,
+                "loss": float(loss),
+            } | evaluate(policy, args)
             rows.append(row)
             print(json.dumps(row), flush=True)
     return rows
@@ -125,8 +147,14 @@ def train_variant(name: str, overrides: dict, seed: int, data: dict, args) -> li
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--variant", nargs="+", action="append", required=True, metavar="NAME KEY=VALUE",
-                        help="a row: a name, then TaxDPDConfig overrides (repeat for more rows)")
+    parser.add_argument(
+        "--variant",
+        nargs="+",
+        action="append",
+        required=True,
+        metavar="NAME KEY=VALUE",
+        help="a row: a name, then TaxDPDConfig overrides (repeat for more rows)",
+    )
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--eval-every", type=int, default=500)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
@@ -151,8 +179,13 @@ def main() -> None:
         name, overrides = parse_variant(tokens)
         for seed in args.seeds:
             rows += train_variant(name, overrides, seed, data, args)
-    payload = {"machine": machine_info(), "arguments": {k: str(v) for k, v in vars(args).items()},
-               "base_config": BASE, "baselines": reference, "rows": rows}
+    payload = {
+        "machine": machine_info(),
+        "arguments": {k: str(v) for k, v in vars(args).items()},
+        "base_config": BASE,
+        "baselines": reference,
+        "rows": rows,
+    }
     print(f"wrote {write_json(args.output, payload)}")
 
 

@@ -71,7 +71,9 @@ def slot_batch(batch: int, n_o: int, n_s: int) -> dict[str, torch.Tensor]:
 
 def stage_of(module_name: str, module: torch.nn.Module) -> str | None:
     for stage, kind in STAGES.items():
-        if (isinstance(kind, str) and module_name.endswith(kind)) or (not isinstance(kind, str) and isinstance(module, kind)):
+        if (isinstance(kind, str) and module_name.endswith(kind)) or (
+            not isinstance(kind, str) and isinstance(module, kind)
+        ):
             return stage
     return None
 
@@ -168,15 +170,30 @@ def lerobot_train_figures(fields: dict, args) -> dict:
     """Steps of `lerobot-train` on a slot dataset at the model's point counts; update/data times from its log."""
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "data"
-        write_slot_dataset(root, episodes=32, object_cloud_size=fields["num_object_points"],
-                           scene_cloud_size=fields["num_scene_points"], seed=0)
+        write_slot_dataset(
+            root,
+            episodes=32,
+            object_cloud_size=fields["num_object_points"],
+            scene_cloud_size=fields["num_scene_points"],
+            seed=0,
+        )
         steps = args.train_steps
         command = [
-            sys.executable, "-m", "lerobot.scripts.lerobot_train", "--policy.type=taxdpd", "--dataset.repo_id=local/speed",
-            f"--dataset.root={root}", "--policy.push_to_hub=false", "--policy.device=cpu",
+            sys.executable,
+            "-m",
+            "lerobot.scripts.lerobot_train",
+            "--policy.type=taxdpd",
+            "--dataset.repo_id=local/speed",
+            f"--dataset.root={root}",
+            "--policy.push_to_hub=false",
+            "--policy.device=cpu",
             *(f"--policy.{k}={json.dumps(v) if isinstance(v, list) else v}" for k, v in fields.items()),
-            f"--batch_size={args.batch_size}", f"--steps={steps}", f"--log_freq={steps // 2}",
-            f"--save_freq={10 * steps}", f"--num_workers={args.num_workers}", f"--output_dir={Path(tmp) / 'run'}",
+            f"--batch_size={args.batch_size}",
+            f"--steps={steps}",
+            f"--log_freq={steps // 2}",
+            f"--save_freq={10 * steps}",
+            f"--num_workers={args.num_workers}",
+            f"--output_dir={Path(tmp) / 'run'}",
         ]
         started = time.perf_counter()
         finished = subprocess.run(command, capture_output=True, text=True, check=True)
@@ -185,8 +202,15 @@ def lerobot_train_figures(fields: dict, args) -> dict:
     if not logged:
         raise RuntimeError("lerobot-train's log has no updt_s/data_s line")
     update_s, data_s = (float(x) for x in logged[-1])  # the second half of the run: past the warm-up
-    return {"steps": steps, "update_s": update_s, "data_s": data_s, "step_s": update_s + data_s,
-            "steps_per_s": 1.0 / (update_s + data_s), "wall_s_with_startup": wall, "num_workers": args.num_workers}
+    return {
+        "steps": steps,
+        "update_s": update_s,
+        "data_s": data_s,
+        "step_s": update_s + data_s,
+        "steps_per_s": 1.0 / (update_s + data_s),
+        "wall_s_with_startup": wall,
+        "num_workers": args.num_workers,
+    }
 
 
 def parse_overrides(tokens: list[str]) -> dict:
@@ -214,10 +238,15 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     overrides = parse_overrides(args.set)
 
-    peak = {"fp32": matmul_gflops(torch.float32, 2048, args.repeats), "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats)}
+    peak = {
+        "fp32": matmul_gflops(torch.float32, 2048, args.repeats),
+        "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats),
+    }
     machine = machine_info()
-    print(f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
-          f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}")
+    print(
+        f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
+        f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}"
+    )
     print(f"matmul peak (2048^3): fp32 {peak['fp32']:.0f} GFLOP/s, bf16 {peak['bf16']:.0f} GFLOP/s")
     results = []
     for name in args.models.split(","):
@@ -231,16 +260,32 @@ def main() -> None:
         results.append(row)
         stages = ", ".join(f"{k} {1000 * v:.0f}" for k, v in p["stages_s"].items())
         print(f"{name} {json.dumps(fields)}")
-        print(f"  policy step {p['step_s']:.3f} s ({p['samples_per_s']:.1f} samples/s, {p['gflop_per_sample']:.2f} GFLOP/sample, "
-              f"{p['achieved_gflops']:.0f} GFLOP/s = {100 * p['fraction_of_peak']:.0f}% of the {precision} peak)")
+        print(
+            f"  policy step {p['step_s']:.3f} s ({p['samples_per_s']:.1f} samples/s, "
+            f"{p['gflop_per_sample']:.2f} GFLOP/sample, {p['achieved_gflops']:.0f} GFLOP/s = "
+            f"{100 * p['fraction_of_peak']:.0f}% of the {precision} peak)"
+        )
         print(f"  stages (ms): {stages}")
         if "lerobot_train" in row:
             t = row["lerobot_train"]
-            print(f"  lerobot-train: {t['step_s']:.3f} s/step ({t['steps_per_s']:.2f} steps/s; update {t['update_s']:.3f} s, "
-                  f"data {t['data_s']:.3f} s, {t['num_workers']} workers)")
-        print(f"  sampling: K=1 {p['sampling']['K=1']['latency_s']:.3f} s, K=10 {p['sampling']['K=10']['latency_s']:.3f} s")
-    path = write_json(args.output, {"machine": machine, "matmul_peak_gflops": peak, "arguments": vars(args),
-                                    "reference_authors_code": REFERENCE, "results": results})
+            print(
+                f"  lerobot-train: {t['step_s']:.3f} s/step ({t['steps_per_s']:.2f} steps/s; "
+                f"update {t['update_s']:.3f} s, data {t['data_s']:.3f} s, {t['num_workers']} workers)"
+            )
+        print(
+            f"  sampling: K=1 {p['sampling']['K=1']['latency_s']:.3f} s, "
+            f"K=10 {p['sampling']['K=10']['latency_s']:.3f} s"
+        )
+    path = write_json(
+        args.output,
+        {
+            "machine": machine,
+            "matmul_peak_gflops": peak,
+            "arguments": vars(args),
+            "reference_authors_code": REFERENCE,
+            "results": results,
+        },
+    )
     print(f"wrote {path} (medians of {args.repeats}; the authors' code on this CPU: {REFERENCE})")
 
 

@@ -13,12 +13,19 @@ from lerobot_taxdpd.apps.synthetic import write_slot_dataset
 from lerobot_taxdpd.recipes import recipe_path
 
 # The shipped CPU recipe at the CI learning test's size, so a few steps take seconds.
-SMALL = ["--policy.hidden_dim=32", "--policy.num_blocks=1", "--policy.num_object_points=64", "--policy.num_scene_points=128"]
+SMALL = [
+    "--policy.hidden_dim=32",
+    "--policy.num_blocks=1",
+    "--policy.num_object_points=64",
+    "--policy.num_scene_points=128",
+]
 
 
 @pytest.fixture(scope="module")
 def slot_dataset(tmp_path_factory):
-    return write_slot_dataset(tmp_path_factory.mktemp("data") / "slots", episodes=16, object_cloud_size=64, scene_cloud_size=128)
+    return write_slot_dataset(
+        tmp_path_factory.mktemp("data") / "slots", episodes=16, object_cloud_size=64, scene_cloud_size=128
+    )
 
 
 def _weights(run_dir):

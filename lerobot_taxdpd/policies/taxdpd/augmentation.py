@@ -85,4 +85,3 @@ def downsample_indices(points: Tensor, num_points: int, generator: torch.Generat
     device = generator.device if generator is not None else points.device
     start = torch.randint(0, n, (b,), generator=generator, device=device).to(points.device)
     return farthest_point_sample(points.float(), num_points, start_index=start)
-

@@ -146,7 +146,9 @@ class TaxDPDConfig(PreTrainedConfig):
         if self.rotation_noise not in ROTATION_NOISES:
             raise ValueError(f"rotation_noise: must be one of {ROTATION_NOISES}, got {self.rotation_noise!r}")
         if self.rotation_noise == "signal" and self.prediction_type != "sample":
-            raise ValueError("rotation_noise='signal': needs prediction_type='sample' (the target is the unturned goal)")
+            raise ValueError(
+                "rotation_noise='signal': needs prediction_type='sample' (the target is the unturned goal)"
+            )
         if self.local_diffusion == "se3" and self.rotation_noise == "signal":
             raise ValueError("rotation_noise='signal': applies to point diffusion, not local_diffusion='se3'")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:

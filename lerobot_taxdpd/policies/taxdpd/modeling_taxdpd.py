@@ -88,7 +88,9 @@ class TaxDPDModel(nn.Module):
 
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         if self.global_stage is None:
-            raise RuntimeError("this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution")
+            raise RuntimeError(
+                "this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution"
+            )
         logits, means = self._gmm(object_points, scene_points)
         return torch.softmax(logits, -1), means
 
@@ -116,9 +118,7 @@ class TaxDPDModel(nn.Module):
         frames = frames.reshape(b * num_samples, 1, 3)
         scene_local = scene_points.repeat_interleave(num_samples, 0) - frames
         object_centred = object_points - object_points.mean(1, keepdim=True)
-        goals = self.local_stage.sample(
-            object_centred, scene_local, num_inference_steps, eta=eta, generator=generator
-        )
+        goals = self.local_stage.sample(object_centred, scene_local, num_inference_steps, eta=eta, generator=generator)
         return (goals + frames).reshape(b, num_samples, n, 3)
 
 
@@ -170,7 +170,9 @@ class TaxDPDPolicy(PreTrainedPolicy):
         """Nothing to reset: each call predicts a goal from the current observation alone."""
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
-        object_points, scene_points = self._checked_inputs(batch.get(OBJECT_KEY), batch.get(SCENE_KEY), OBJECT_KEY, SCENE_KEY)
+        object_points, scene_points = self._checked_inputs(
+            batch.get(OBJECT_KEY), batch.get(SCENE_KEY), OBJECT_KEY, SCENE_KEY
+        )
         goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points)
         if self.training:
             object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
@@ -224,7 +226,12 @@ class TaxDPDPolicy(PreTrainedPolicy):
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
             goals = self.model.sample(
-                frame.to_model(model_object), frame.to_model(model_scene), num_samples, steps, eta=eta, generator=generator
+                frame.to_model(model_object),
+                frame.to_model(model_scene),
+                num_samples,
+                steps,
+                eta=eta,
+                generator=generator,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
@@ -255,7 +262,9 @@ class TaxDPDPolicy(PreTrainedPolicy):
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
-            weights, means = self.model.placement_distribution(frame.to_model(model_object), frame.to_model(model_scene))
+            weights, means = self.model.placement_distribution(
+                frame.to_model(model_object), frame.to_model(model_scene)
+            )
         weights, means = weights.float(), frame.to_metres(means)
         if model_scene.shape[1] != scene_points.shape[1]:
             # Each component of the reduced scene stands for the input points nearest to it: they share its
@@ -304,7 +313,9 @@ class TaxDPDPolicy(PreTrainedPolicy):
             if isinstance(value, np.ndarray):
                 value = torch.from_numpy(value)
             if isinstance(value, Tensor) and value.dim() == 2:
-                raise PointCloudError(f"{name}: expected a batch (B, N, 3), got {tuple(value.shape)}; add one with [None]")
+                raise PointCloudError(
+                    f"{name}: expected a batch (B, N, 3), got {tuple(value.shape)}; add one with [None]"
+                )
             check_point_cloud(value, name, min_points=3, batched=True)
             if value.dim() != 3:
                 raise PointCloudError(f"{name}: expected shape (B, N, 3), got {tuple(value.shape)}")
@@ -324,7 +335,9 @@ class TaxDPDPolicy(PreTrainedPolicy):
         check_same_shape(object_points, goal_points, OBJECT_KEY, ACTION_KEY)
         return goal_points.to(object_points)
 
-    def _augment(self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def _augment(
+        self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
         config = self.config
         if config.z_rotation_augmentation:
             object_points, scene_points, goal_points = random_z_rotation(object_points, scene_points, goal_points)

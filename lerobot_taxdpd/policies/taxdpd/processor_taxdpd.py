@@ -49,9 +49,7 @@ def make_taxdpd_pre_post_processors(
             AddBatchDimensionProcessorStep(),
             AddPointCloudBatchDimensionStep(),
             DeviceProcessorStep(device=config.device),
-            NormalizerProcessorStep(
-                features=features, norm_map=config.normalization_mapping, stats=dataset_stats
-            ),
+            NormalizerProcessorStep(features=features, norm_map=config.normalization_mapping, stats=dataset_stats),
         ],
         name=POLICY_PREPROCESSOR_DEFAULT_NAME,
     )

@@ -17,8 +17,8 @@ import math
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
 from lerobot_taxdpd.maths.geometry import gather_points
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import centroid_tokens, interpolate, make_encoder
 
 
@@ -45,11 +45,15 @@ class DenseGMM(nn.Module):
         object_tokens = self.object_encoder(object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0))
         condition = self.condition + self.offset_embedding(offset)
         layout = self.scene_encoder.layout([scene_centred])
-        scene_features = self.scene_encoder(scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0), layout=layout)
+        scene_features = self.scene_encoder(
+            scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0), layout=layout
+        )
         if self.centroid_tokens:
             index, to_points = centroid_tokens(scene_centred, self.token_ratio, layout)
             tokens = gather_points(scene_features, index)
-            scene_features = scene_features + interpolate(self.backbone(tokens, object_tokens, condition) - tokens, to_points)
+            scene_features = scene_features + interpolate(
+                self.backbone(tokens, object_tokens, condition) - tokens, to_points
+            )
         else:
             scene_features = self.backbone(scene_features, object_tokens, condition)
         out = self.head(scene_features, condition).float()

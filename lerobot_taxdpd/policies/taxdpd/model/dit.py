@@ -64,7 +64,12 @@ class DiTBlock(nn.Module):
     def __init__(self, dim: int, num_heads: int, mlp_ratio: float) -> None:
         super().__init__()
         hidden = int(dim * mlp_ratio)
-        self.norm_self, self.norm_cross, self.norm_mlp, self.norm_context = _norm(dim), _norm(dim), _norm(dim), _norm(dim)
+        self.norm_self, self.norm_cross, self.norm_mlp, self.norm_context = (
+            _norm(dim),
+            _norm(dim),
+            _norm(dim),
+            _norm(dim),
+        )
         self.self_attention = Attention(dim, num_heads)
         self.cross_attention = Attention(dim, num_heads)
         self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim))
@@ -76,7 +81,9 @@ class DiTBlock(nn.Module):
         (s1, c1, g1, s2, c2, g2, s3, c3, g3) = self.modulation(condition).chunk(9, dim=-1)
         h = _modulate(self.norm_self(x), s1, c1)
         x = x + g1.unsqueeze(1) * self.self_attention(h, h)
-        x = x + g2.unsqueeze(1) * self.cross_attention(_modulate(self.norm_cross(x), s2, c2), self.norm_context(context))
+        x = x + g2.unsqueeze(1) * self.cross_attention(
+            _modulate(self.norm_cross(x), s2, c2), self.norm_context(context)
+        )
         return x + g3.unsqueeze(1) * self.mlp(_modulate(self.norm_mlp(x), s3, c3))
 
 

@@ -18,10 +18,16 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from lerobot_taxdpd.maths.geometry import gather_points
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
-from lerobot_taxdpd.maths.geometry import gather_points
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, centroid_count, centroid_tokens, make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
+    Grouping,
+    SamplingLayout,
+    centroid_count,
+    centroid_tokens,
+    make_encoder,
+)
 from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
@@ -83,7 +89,9 @@ class LocalDenoiser(nn.Module):
             reconstruction_layout = layout.repeat_interleave(repeats) if layout is not None else None
         if self.centroid_tokens:
             if reconstruction_layout is not None:  # its scene part already is the scene's farthest point sample
-                scene_token_index = reconstruction_layout.level1[:, -centroid_count(scene.shape[1], self.token_ratio):] - n
+                scene_token_index = (
+                    reconstruction_layout.level1[:, -centroid_count(scene.shape[1], self.token_ratio) :] - n
+                )
             else:
                 scene_token_index = centroid_tokens(scene[::repeats], self.token_ratio)[0].repeat_interleave(repeats, 0)
         if not self.use_reconstruction:
@@ -115,7 +123,9 @@ class LocalDenoiser(nn.Module):
         n = goal_estimate.shape[1]
         if self.use_reconstruction:
             xyz = torch.cat([goal_estimate, context.scene], 1)
-            flags = torch.cat([xyz.new_ones(xyz.shape[0], n, 1), xyz.new_zeros(xyz.shape[0], context.scene.shape[1], 1)], 1)
+            flags = torch.cat(
+                [xyz.new_ones(xyz.shape[0], n, 1), xyz.new_zeros(xyz.shape[0], context.scene.shape[1], 1)], 1
+            )
             features = self.reconstruction_encoder(xyz, flags, layout=context.reconstruction_layout)
             estimate_features, scene_tokens = features[:, :n], features[:, n:]
         else:
@@ -131,7 +141,10 @@ class LocalDenoiser(nn.Module):
             deformation_input = torch.cat([shape_estimate, displacement, shape_estimate - context.object_centred], -1)
             streams.append(
                 self.deformation_encoder(
-                    context.object_centred, deformation_input, layout=context.object_layout, grouping=context.object_grouping
+                    context.object_centred,
+                    deformation_input,
+                    layout=context.object_layout,
+                    grouping=context.object_grouping,
                 )
             )
         tokens = self.token_mixing(torch.cat(streams, -1))
@@ -150,9 +163,7 @@ class LocalDiffusion(nn.Module):
     def __init__(self, config) -> None:
         super().__init__()
         self.parameterization = make_parameterization(config)
-        self.denoiser = LocalDenoiser(
-            config, self.parameterization.frame_dim, self.parameterization.has_point_output
-        )
+        self.denoiser = LocalDenoiser(config, self.parameterization.frame_dim, self.parameterization.has_point_output)
         self.training_scheduler = make_training_scheduler(config)
         self.sampling_scheduler = make_sampling_scheduler(config)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0

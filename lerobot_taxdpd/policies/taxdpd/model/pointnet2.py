@@ -76,7 +76,9 @@ def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> Sam
 
 
 def _square_distances(a: Tensor, b: Tensor) -> Tensor:
-    return ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(-2) - 2.0 * a @ b.transpose(-1, -2)).clamp_min(0.0)
+    return ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(-2) - 2.0 * a @ b.transpose(-1, -2)).clamp_min(
+        0.0
+    )
 
 
 def _ball_query(centres: Tensor, points: Tensor, radius: float, max_neighbors: int) -> Tensor:
@@ -110,7 +112,9 @@ def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, floa
         )
 
 
-def centroid_tokens(xyz: Tensor, ratio: float, layout: SamplingLayout | None = None) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+def centroid_tokens(
+    xyz: Tensor, ratio: float, layout: SamplingLayout | None = None
+) -> tuple[Tensor, tuple[Tensor, Tensor]]:
     """The first set-abstraction level's centroids of `xyz` (B, M, 3) as token indices (B, M1), with the
     3-NN weights that carry token values back to every point. Reuses `layout` when one was computed."""
     if layout is None:
