@@ -32,7 +32,6 @@ ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")
 SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
-SCENE_TOKENS = ("points", "centroids")
 ROTATION_NOISES = ("paper", "signal")
 
 
@@ -82,9 +81,6 @@ class TaxDPDConfig(PreTrainedConfig):
     sa_ratios: tuple[float, float] = (0.2, 0.25)
     sa_radii: tuple[float, float] = (1.5, 3.0)
     max_neighbors: int = 64
-    # DiT tokens of the scene: every point ("points", the paper), or the first set-abstraction level's
-    # centroids ("centroids": sa_ratios[0] of the points, interpolated back to every point where needed).
-    scene_tokens: str = "points"
 
     # ---- ablation switches (see module docstring)
     use_gmm: bool = True
@@ -153,8 +149,6 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError("rotation_noise='signal': applies to point diffusion, not local_diffusion='se3'")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
-        if self.scene_tokens not in SCENE_TOKENS:
-            raise ValueError(f"scene_tokens: must be one of {SCENE_TOKENS}, got {self.scene_tokens!r}")
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if self.sampler not in SAMPLERS:

@@ -4,10 +4,6 @@ Scene tokens (PointNet++ features of the scene) cross-attend to object tokens in
 object-to-scene offset (the diffusion step is fixed at 0, so a learned vector replaces its embedding).
 Each scene point i gets a mixing logit and a residual r_i; the component mean is p_i + r_i. Trained by the
 negative log-likelihood of the true goal centroid under isotropic Gaussians of fixed variance.
-
-With `scene_tokens="centroids"` only the first set-abstraction level's centroids (a farthest point sample of
-the scene) are DiT tokens; what the DiT adds to them is interpolated back to every scene point, which keeps
-its own features, so there is still one Gaussian per scene point at a fraction of the attention's cost.
 """
 
 from __future__ import annotations
@@ -17,9 +13,8 @@ import math
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.maths.geometry import gather_points
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import centroid_tokens, interpolate, make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
 
 
 class DenseGMM(nn.Module):
@@ -34,8 +29,6 @@ class DenseGMM(nn.Module):
         self.offset_embedding = nn.Sequential(nn.Linear(3, dim), nn.SiLU(), nn.Linear(dim, dim))
         self.backbone = DiT(dim, config.num_heads, config.num_blocks, config.mlp_ratio)
         self.head = OutputHead(dim, 4)
-        self.centroid_tokens = config.scene_tokens == "centroids"
-        self.token_ratio = config.sa_ratios[0]
 
     def forward(self, object_centred: Tensor, scene_centred: Tensor, offset: Tensor) -> tuple[Tensor, Tensor]:
         """object_centred (B, N, 3), scene_centred (B, M, 3), offset = object centroid - scene centroid (B, 3).
@@ -44,19 +37,8 @@ class DenseGMM(nn.Module):
         """
         object_tokens = self.object_encoder(object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0))
         condition = self.condition + self.offset_embedding(offset)
-        layout = self.scene_encoder.layout([scene_centred])
-        scene_features = self.scene_encoder(
-            scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0), layout=layout
-        )
-        if self.centroid_tokens:
-            index, to_points = centroid_tokens(scene_centred, self.token_ratio, layout)
-            tokens = gather_points(scene_features, index)
-            scene_features = scene_features + interpolate(
-                self.backbone(tokens, object_tokens, condition) - tokens, to_points
-            )
-        else:
-            scene_features = self.backbone(scene_features, object_tokens, condition)
-        out = self.head(scene_features, condition).float()
+        scene_tokens = self.scene_encoder(scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0))
+        out = self.head(self.backbone(scene_tokens, object_tokens, condition), condition).float()
         return out[..., 0], scene_centred + out[..., 1:]
 
     def log_likelihood(self, logits: Tensor, means: Tensor, target: Tensor) -> Tensor:

@@ -18,16 +18,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.maths.geometry import gather_points
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
-    Grouping,
-    SamplingLayout,
-    centroid_count,
-    centroid_tokens,
-    make_encoder,
-)
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
 from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
@@ -42,7 +35,6 @@ class DenoiserContext:
     object_features: Tensor  # (B, N, dim)
     reconstruction_layout: SamplingLayout | None
     scene_features: Tensor | None  # scene tokens when there is no reconstruction embedding
-    scene_token_index: Tensor | None  # (B, M1) scene points that are DiT tokens (scene_tokens="centroids")
 
 
 def _empty_channels(x: Tensor) -> Tensor:
@@ -65,8 +57,6 @@ class LocalDenoiser(nn.Module):
         self.object_encoder = make_encoder(config, in_channels=0)
         if self.use_deformation:
             self.deformation_encoder = make_encoder(config, in_channels=9)
-        self.centroid_tokens = config.scene_tokens == "centroids"
-        self.token_ratio = config.sa_ratios[0]
         self.token_mixing = nn.Linear((3 if self.use_deformation else 2) * dim, dim)
         self.timestep_embedding = TimestepEmbedding(dim, config.timestep_embed_dim)
         self.frame_token = nn.Parameter(torch.randn(1, 1, dim) * 0.02) if frame_dim else None
@@ -82,19 +72,11 @@ class LocalDenoiser(nn.Module):
         translation), are done once per object and scene and repeated.
         """
         repeats = scene.shape[0] // object_centred.shape[0]
-        n = object_centred.shape[1]
-        reconstruction_layout = scene_features = scene_token_index = None
+        reconstruction_layout = scene_features = None
         if self.use_reconstruction:
             layout = self.reconstruction_encoder.layout([object_centred, scene[::repeats]])
             reconstruction_layout = layout.repeat_interleave(repeats) if layout is not None else None
-        if self.centroid_tokens:
-            if reconstruction_layout is not None:  # its scene part already is the scene's farthest point sample
-                scene_token_index = (
-                    reconstruction_layout.level1[:, -centroid_count(scene.shape[1], self.token_ratio) :] - n
-                )
-            else:
-                scene_token_index = centroid_tokens(scene[::repeats], self.token_ratio)[0].repeat_interleave(repeats, 0)
-        if not self.use_reconstruction:
+        else:
             scene_features = self.scene_encoder(scene, _empty_channels(scene))
         object_layout = self.object_encoder.layout([object_centred])
         object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
@@ -114,7 +96,6 @@ class LocalDenoiser(nn.Module):
             object_features,
             reconstruction_layout,
             scene_features,
-            scene_token_index,
         )
 
     def forward(
@@ -133,8 +114,6 @@ class LocalDenoiser(nn.Module):
                 goal_estimate, _empty_channels(goal_estimate), layout=context.object_layout
             )
             scene_tokens = context.scene_features
-        if context.scene_token_index is not None:
-            scene_tokens = gather_points(scene_tokens, context.scene_token_index)
         streams = [estimate_features, context.object_features]
         if self.use_deformation:
             displacement = goal_estimate - context.object_centred

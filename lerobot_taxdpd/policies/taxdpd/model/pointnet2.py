@@ -112,17 +112,6 @@ def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, floa
         )
 
 
-def centroid_tokens(
-    xyz: Tensor, ratio: float, layout: SamplingLayout | None = None
-) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-    """The first set-abstraction level's centroids of `xyz` (B, M, 3) as token indices (B, M1), with the
-    3-NN weights that carry token values back to every point. Reuses `layout` when one was computed."""
-    if layout is None:
-        layout = sampling_layout([xyz], (ratio, ratio))
-    with torch.autocast(device_type=xyz.device.type, enabled=False):
-        return layout.level1, _three_nn(xyz.float(), gather_points(xyz.float(), layout.level1))
-
-
 def interpolate(features: Tensor, weights: tuple[Tensor, Tensor]) -> Tensor:
     """Values at every point from values (B, M1, C) at its 3 nearest centroids (inverse-distance weights)."""
     idx, w = weights
