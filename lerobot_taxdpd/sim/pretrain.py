@@ -17,6 +17,7 @@ import shlex
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 from safetensors.torch import load_file, save_file
 
 from lerobot_taxdpd.recipes import recipe_path, run, train_command
@@ -103,8 +104,9 @@ def pretrain(
         save_shipped(policy, checkpoint, destination)
         policy = load_goal_predictor(destination)
     print(f"[3/4] evaluating on {trials} held-out {task.name} trials, K = {num_samples}", flush=True)
-    held_out = (make_trial(task, seed, "test") for seed in range(trials))
+    held_out = [make_trial(task, seed, "test") for seed in range(trials)]
     report = evaluate(policy, held_out, num_samples, figures_dir=output / "figures", total=trials)
+    orientation = orientation_checks(policy, task, held_out)
     report["predictor"] = str(destination or checkpoint)
     write_json(output / f"{task.name}_eval.json", report)
     train_config = json.loads((checkpoint / "train_config.json").read_text())
@@ -123,6 +125,7 @@ def pretrain(
             for key, value in report.items()
             if key in _REPORTED or key.startswith(("coverage@", "precision@"))
         },
+        **orientation,
     }
     policy.metrics = metrics
     print(f"[4/4] {task.name}: success {report['success']['success_rate']:.1%} on held-out geometry", flush=True)
@@ -131,6 +134,38 @@ def pretrain(
         print(f"shipped as {destination}")
     (output / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def orientation_checks(policy, task, trials: list) -> dict:
+    """Does the predictor read orientation off the scene? The equivariance probe on the first held-out trials,
+    and the trivial baselines (true position; start or mean goal orientation) on all of them."""
+    from lerobot_taxdpd.maths.equivariance import goal_turn_response
+    from lerobot_taxdpd.sim.predictors import OraclePredictor
+
+    probe = trials[:8]
+    turns = goal_turn_response(
+        policy,
+        np.stack([t.object_points for t in probe]),
+        np.stack([t.scene_points for t in probe]),
+        num_samples=4,
+        symmetry_period_deg=task.symmetry_period_deg,
+    )
+    baselines = {}
+    for name, orientation in (("copy_start_orientation", "start"), ("mean_goal_orientation", "mean")):
+        report = evaluate(OraclePredictor(trials, orientation=orientation), trials, 1, progress=False)
+        baselines[name] = {
+            "success_rate": report["success"]["success_rate"],
+            "rotation_error_deg_median": report["rotation_error_deg"]["median"],
+        }
+    return {
+        "equivariance_deg": {
+            "angle": 20.0,
+            "trials": len(probe),
+            **turns,
+            "ideal": {"scene_yaw": 20.0, "object_yaw": 0.0, "object_tilt": 0.0},
+        },
+        "baselines_true_position": baselines,
+    }
 
 
 _REPORTED = (

@@ -52,6 +52,9 @@ class PlacementTask(ABC):
     description: str  # the plain-language task string written to datasets
     point_count_key: str  # key of DEFAULT_POINT_COUNTS (the paper's point counts of the analogous task)
     multi_modal: bool = False  # scenes can have several valid goals: report coverage@K and precision@K
+    # A turn about the vertical that maps the object's valid placements onto each other (a mug hung facing
+    # either way, a box turned around): the equivariance probe folds yaw by it. None: no such turn.
+    symmetry_period_deg: float | None = None
     holds_object: bool = False  # insertion: the gripper keeps the plug; rigid tasks release and settle
     approach_distance: float = 0.15
     coarse_step: float = 0.005

@@ -39,6 +39,7 @@ class BookShelfTask(PlacementTask):
     description = "put the book upright into a free slot of the bookshelf"
     point_count_key = "book_on_bookshelf_double_view_rnd_ori"
     multi_modal = True
+    symmetry_period_deg = 180.0  # turned around, it occupies the same space
     perturbation = (0.02, 15.0)
     coverage_threshold = 0.02
     approach_distance = 0.30

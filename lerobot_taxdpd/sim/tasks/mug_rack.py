@@ -46,6 +46,7 @@ class MugScene:
 
 class MugRackTask(PlacementTask):
     point_count_key = "mug_rack_easy_single"
+    symmetry_period_deg = 180.0  # hung facing either way
     perturbation = (0.02, 15.0)
     coverage_threshold = 0.02
 
