@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -119,6 +120,34 @@ def test_clouds_denser_than_the_network_are_reduced_and_answered_for_every_point
 def test_bad_input_names_the_argument(obj, scene, message):
     with pytest.raises(PointCloudError, match=message):
         tiny_policy().sample_goals(obj, scene, 1)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"sampler": "DDIM"}, r"sampler: must be one of \['ddim', 'ddpm'\], got 'DDIM'"),
+        ({"num_inference_steps": 0}, "num_inference_steps: must divide num_train_timesteps=100"),
+        ({"num_inference_steps": 7}, "got 7"),
+        ({"num_samples": 0}, "num_samples: must be a positive integer"),
+    ],
+)
+def test_bad_sampling_options_name_the_option(options, message):
+    obj, scene = clouds(1)
+    options = {"num_samples": 1, **options}
+    with pytest.raises(ValueError, match=message):
+        tiny_policy().sample_goals(obj, scene, **options)
+
+
+def test_inputs_in_the_wrong_units_are_flagged_with_the_likely_cause():
+    policy = tiny_policy()  # trained scale: radius 3 model units at point_scale 20, i.e. 0.15 m objects
+    obj, scene = clouds(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # metres: no warning
+        policy.sample_goals(obj, scene, 1)
+    with pytest.warns(UserWarning, match=r"object_points: the object's radius is .* these look like millimetres"):
+        policy.sample_goals(obj * 1000, scene * 1000, 1)
+    with pytest.warns(UserWarning, match="observation.pointcloud.object: .* check the units"):
+        policy.train().forward({OBJECT_KEY: obj * 50, SCENE_KEY: scene * 50, ACTION_KEY: obj * 50})
 
 
 def test_training_batch_with_mismatched_goal_is_rejected():
