@@ -5,10 +5,15 @@ in the paper) after RANSAC-SVD turns it into a pose. Errors are measured against
 to the executed sample (the demonstrated goal when the task has one mode and the object no symmetry),
 so a sample that solves the scene another valid way is not penalised. Multi-modal tasks also get
 coverage@K and precision@K, counting each mode (peg, slot, support, socket) once.
+
+Every random draw of a trial comes from its scene seed: the predictor gets a `torch.Generator` seeded with
+it (when its `sample_goals` takes `generator=`; torch's global generator is seeded with it otherwise) and
+RANSAC another, so the same command gives the same numbers on every run, whatever ran before the trial.
 """
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections import Counter
 from collections.abc import Iterable
@@ -32,12 +37,19 @@ from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
 from lerobot_taxdpd.sim.trials import Trial, execute
 
 
+def _takes_generator(predictor: GoalPredictor) -> bool:
+    parameters = inspect.signature(predictor.sample_goals).parameters.values()
+    return any(p.name == "generator" or p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters)
+
+
 def _sample(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
-    """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked."""
+    """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked; drawn from the trial's seed."""
     object_points = torch.from_numpy(trial.object_points)[None]
     scene_points = torch.from_numpy(trial.scene_points)[None]
-    with torch.inference_mode():
-        samples = predictor.sample_goals(object_points, scene_points, num_samples)
+    seeded = {"generator": torch.Generator().manual_seed(trial.seed)} if _takes_generator(predictor) else {}
+    with torch.inference_mode(), torch.random.fork_rng():
+        torch.manual_seed(trial.seed)  # for predictors that draw from torch's global generator
+        samples = predictor.sample_goals(object_points, scene_points, num_samples, **seeded)
     samples = np.asarray(samples.detach().cpu() if isinstance(samples, torch.Tensor) else samples, dtype=np.float64)
     expected = (1, num_samples, *trial.object_points.shape)
     if samples.shape != expected:
@@ -111,7 +123,9 @@ def evaluate(
         tick = time.perf_counter()
         samples = _sample(predictor, trial, num_samples)
         predict_seconds = time.perf_counter() - tick
-        transform, _ = estimate_rigid_transform(trial.object_points.astype(np.float64), samples[0])
+        transform, _ = estimate_rigid_transform(
+            trial.object_points.astype(np.float64), samples[0], generator=torch.Generator().manual_seed(trial.seed)
+        )
         outcome = execute(trial, transform)
         record = {
             "seed": trial.seed,
