@@ -28,6 +28,7 @@ from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 
 def expert_costs(split: str, seeds: range) -> dict:
@@ -115,7 +116,9 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1000, help="first scene seed (away from the datasets' seeds)")
     parser.add_argument("--no-policy", action="store_true", help="skip the gc_dp3 latency figures")
     parser.add_argument("--output", type=Path, default=Path("results/cloth_cost.json"))
+    add_threads_argument(parser)
     args = parser.parse_args()
+    configure_threads(args.threads)
     report = {
         "command": shlex.join([sys.executable, *sys.argv]),
         "machine": machine_info(),
