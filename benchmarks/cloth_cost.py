@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from lerobot_taxdpd.maths.metrics import success_summary
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
@@ -37,7 +38,7 @@ def expert_costs(split: str, seeds: range) -> dict:
     per_phase: dict[str, list[float]] = {"approach": [], "thread": []}
     episodes, releases, successes = [], [], 0
     try:
-        for seed in seeds:
+        for seed in tqdm(seeds, desc=f"expert episodes ({split})"):
             scene = sample_scene(split, seed, env.ranges)
             started = time.perf_counter()
             env.reset(options={"scene": scene})
