@@ -27,8 +27,8 @@ from tqdm import tqdm
 from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
 from lerobot_taxdpd.maths.metrics import coverage_precision, success_summary
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.reports.plots import plot_goal_samples
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
-from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 
@@ -127,9 +127,18 @@ def run_trial(request: TrialRequest) -> dict:
                 result["predicted_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, predicted[0])))
         if request.figure_dir:
             path = Path(request.figure_dir) / f"{request.split}_{request.seed:04d}.png"
-            shown = predicted[0] if predicted is not None else None
+            samples = predicted if predicted is not None else np.zeros((0, *start_cloud.shape))
             title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goal{'s' * (len(goals) > 1)}"
-            result["figure"] = str(plot_trial(path, hanger_cloud, start_cloud, goals, shown, title))
+            figure = plot_goal_samples(
+                path,
+                hanger_cloud,
+                start_cloud,
+                samples,
+                valid_goals=goals,
+                first_sample_label="executed by gc_dp3" if executor is not None else "",
+                title=f"{title}, {len(samples)} predicted",
+            )
+            result["figure"] = str(figure)
         result["seconds"] = time.perf_counter() - started
         return result
     finally:
