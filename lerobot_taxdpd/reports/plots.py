@@ -86,18 +86,21 @@ def plot_goal_samples(
     valid_goals: Sequence[np.ndarray] = (),
     goals_label: str = "valid goals",
     first_sample_label: str = "executed",
+    scene_label: str = "scene",
+    object_label: str = "object (start)",
     title: str = "",
 ) -> Path:
     """Scene (grey), object at its start (blue), valid goals (green) and the K sampled goals (numbered colours).
 
-    `goals_label` names the green clouds in the legend, e.g. "ground-truth goal" for a demonstration's;
-    `first_sample_label` says what sample 1 is (empty: nothing).
+    The labels name what is drawn in the legend: `goals_label` the green clouds (e.g. "ground-truth goal" for
+    a demonstration's), `first_sample_label` what sample 1 is (empty: nothing), `scene_label` and
+    `object_label` the scene and the object (e.g. "hangers", "cloth (start)").
     """
     centre, half = _frame(np.concatenate([scene_points, object_points, *valid_goals]))
     fig = plt.figure(figsize=(14, 6.5))
     oblique, top = _axes(fig, centre, half)
-    _scatter(oblique, top, scene_points, s=1, c="0.6", label="scene")
-    _scatter(oblique, top, object_points, s=1, c="tab:blue", label="object (start)")
+    _scatter(oblique, top, scene_points, s=1, c="0.6", label=scene_label)
+    _scatter(oblique, top, object_points, s=1, c="tab:blue", label=object_label)
     for g, goal in enumerate(valid_goals):
         _scatter(oblique, top, goal, s=2, c="tab:green", alpha=0.35, label=goals_label if g == 0 else None)
     outside = []

@@ -136,6 +136,8 @@ def run_trial(request: TrialRequest) -> dict:
                 samples,
                 valid_goals=goals,
                 first_sample_label="executed by gc_dp3" if executor is not None else "",
+                scene_label="hangers",
+                object_label="cloth (start)",
                 title=f"{title}, {len(samples)} predicted",
             )
             result["figure"] = str(figure)
