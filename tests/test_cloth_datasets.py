@@ -85,3 +85,16 @@ def test_generate_refuses_to_overwrite_and_bad_arguments(datasets, tmp_path, cap
     with pytest.raises(SystemExit):
         main([*argv, "--episodes", "1", "--root", str(tmp_path / "new"), "--task", "mug_rack"])
     assert not (tmp_path / "new").exists()
+
+
+def test_the_viewer_shows_a_policy_episode_with_its_grippers_and_numbers(datasets, tmp_path):
+    import rerun.dataframe as rrd
+
+    from lerobot_taxdpd.viewer import main as viewer
+
+    root, _, policy = datasets
+    recording = tmp_path / "policy.rrd"
+    assert viewer(["dataset", "--root", str(root / "policy"), "--episode", "0", "--save", str(recording)]) == 0
+    entities = {column.entity_path for column in rrd.load_recording(recording).schema().component_columns()}
+    assert {f"/{OBJECT_KEY}", f"/{SCENE_KEY}", f"/{GOAL_CLOUD_KEY}", "/grippers"} <= entities
+    assert {f"/plots/{STATE_KEY}/11", f"/plots/{ACTION_KEY}/5"} <= entities
