@@ -116,7 +116,7 @@ def log_trial(task_name: str, goal_policy_path: str, seed: int, split: str, num_
             )
         log_weights = np.log10(np.clip(weights[0].float().cpu().numpy(), 1e-8, None))
         span = max(log_weights.max() - log_weights.min(), 1e-6)
-        scene_colours = (matplotlib.colormaps["viridis"]((log_weights - log_weights.min()) / span)[:, :3] * 255)
+        scene_colours = matplotlib.colormaps["viridis"]((log_weights - log_weights.min()) / span)[:, :3] * 255
         heaviest = np.argsort(log_weights)[-10:]
         rr.log("gmm/heaviest_means", rr.Points3D(means[0].cpu().numpy()[heaviest], colors=RED, radii=2 * radius))
     rr.log("scene", rr.Points3D(scene, colors=np.asarray(scene_colours, dtype=np.uint8), radii=radius))
@@ -171,7 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
     trial = views.add_parser("trial", help="a simulated trial with a goal predictor's K goals")
     trial.add_argument("--task", required=True, choices=task_names())
     trial.add_argument(
-        "--goal-policy.path", dest="goal_policy_path", metavar="NAME_OR_PATH", required=True,
+        "--goal-policy.path",
+        dest="goal_policy_path",
+        metavar="NAME_OR_PATH",
+        required=True,
         help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id",
     )
     trial.add_argument("--seed", type=int, default=0, help="scene seed (as sim eval's trial SEED; default: 0)")

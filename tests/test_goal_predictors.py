@@ -8,6 +8,7 @@ import warnings
 
 import pytest
 import torch
+from huggingface_hub import ModelCard
 from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import install_in_hub_cache, run_cli
@@ -101,3 +102,29 @@ def test_every_shipped_predictor_loads_by_name_and_states_its_measured_metrics(n
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(folder))
     assert "UnpackEnvironmentPointCloudsStep" in [type(step).__name__ for step in preprocessor.steps]
     assert type(postprocessor.steps[-1]).__name__ == "FlattenGoalCloudStep"
+
+
+@pytest.mark.parametrize("name", sorted(list_goal_predictors()))
+def test_every_shipped_card_names_its_task_reports_its_metrics_for_the_hub_and_runs(name):
+    folder = SHIPPED_DIR / name
+    metrics = json.loads((folder / "metrics.json").read_text())
+    policy = load_goal_predictor(name)
+    fresh = policy.generate_model_card(None, policy.name, policy.config.license, policy.config.tags)
+    shipped = (folder / "README.md").read_text()
+    assert shipped.strip() == str(fresh).strip(), (
+        f"{folder}/README.md is stale: regenerate it from metrics.json with "
+        "load_goal_predictor(name).generate_model_card(None, 'taxdpd', None, None).save(path)"
+    )
+    card = ModelCard.load(folder / "README.md")
+    assert f"# TAX-DPD goal predictor for `{name}`" in card.text and "pip install lerobot_policy_taxdpd" in card.text
+    assert "## Limitations" in card.text and f"{metrics['success']['success_rate']:.0%}" in card.text
+    results = {result.metric_type: result.metric_value for result in card.data.eval_results}
+    assert results["success_rate"] == pytest.approx(metrics["success"]["success_rate"])
+    if "translation_error_mm" in metrics:
+        assert results["translation_error_mm"] == pytest.approx(metrics["translation_error_mm"]["median"], abs=1e-4)
+    assert {result.dataset_split for result in card.data.eval_results} == {"test"}
+    example = card.text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert f'load_goal_predictor("{name}")' in example
+    namespace: dict = {}
+    exec(compile(example, f"{name}/README.md", "exec"), namespace)  # the card's example runs as written
+    assert namespace["goals"].shape[:2] == (1, 10)

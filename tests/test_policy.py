@@ -189,7 +189,11 @@ def test_processor_batches_a_single_sample_and_unpacks_env_clouds():
 
 def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path):
     policy = tiny_policy()
-    policy.metrics = {"success_rate": 0.93, "translation_error_mm": 1.25}
+    policy.metrics = {
+        "task": "insert_ssd",
+        "success": {"success_rate": 0.93, "ci95_low": 0.86, "ci95_high": 0.97, "trials": 100},
+        "translation_error_mm": {"median": 1.25, "mean": 1.5, "p90": 2.5},
+    }
     policy.save_pretrained(tmp_path)
     loaded = TaxDPDPolicy.from_pretrained(tmp_path)
     assert loaded.config.point_scale == 20.0 and loaded.metrics == policy.metrics
@@ -197,7 +201,9 @@ def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path)
     expected = policy.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1))
     assert torch.equal(loaded.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1)), expected)
     card = (tmp_path / "README.md").read_text()
-    assert "| `use_gmm` | `True` |" in card and "| success_rate | 0.93 |" in card and "library_name: lerobot" in card
+    assert "| `use_gmm` | `True` |" in card and "library_name: lerobot" in card
+    assert "# TAX-DPD goal predictor for `insert_ssd`" in card and 'load_goal_predictor("insert_ssd")' in card
+    assert "success 93% (95% CI 86%-97%, 100 trials)" in card
     pushed_card = str(loaded.generate_model_card("me/slots", "taxdpd", None, ["extra"]))
     assert "datasets:" in pushed_card and "me/slots" in pushed_card and "translation_error_mm" in pushed_card
 

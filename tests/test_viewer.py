@@ -27,8 +27,13 @@ def _positions(path, entity: str) -> np.ndarray:
 
 def test_a_dataset_episode_is_saved_frame_by_frame(tmp_path):
     root = generate_dataset(
-        get_task("insert_ssd"), episodes=2, split="train", repo_id="local/ssd", root=tmp_path / "data",
-        frames_per_episode=3, progress=False,
+        get_task("insert_ssd"),
+        episodes=2,
+        split="train",
+        repo_id="local/ssd",
+        root=tmp_path / "data",
+        frames_per_episode=3,
+        progress=False,
     )
     recording = tmp_path / "episode.rrd"
     assert main(["dataset", "--root", str(root), "--episode", "1", "--save", str(recording)]) == 0

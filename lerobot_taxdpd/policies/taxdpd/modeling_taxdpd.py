@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from huggingface_hub import ModelCard, ModelCardData, hf_hub_download
+from huggingface_hub import ModelCard, hf_hub_download
 from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
@@ -397,15 +397,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
         return policy
 
     def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
-        card_data = ModelCardData(
-            license=license or "apache-2.0",
-            library_name="lerobot",
-            pipeline_tag="robotics",
-            tags=sorted(set(tags or []) | {"robotics", "lerobot", model_type, "point-cloud", "placement"}),
-            model_name=model_type,
-            datasets=dataset_repo_id,
-        )
-        return ModelCard(render_model_card(card_data.to_yaml(), self.config, self.metrics, dataset_repo_id))
+        return render_model_card(self.config, self.metrics, dataset_repo_id, license, tags)
 
 
 def _load_metrics(pretrained_name_or_path, kwargs: dict) -> dict:
