@@ -14,6 +14,7 @@ heading of `--help`.
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 from pathlib import Path
@@ -23,8 +24,7 @@ from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 CLOTH_TASK = "cloth_hang"
-#: Defaults that differ between the rigid tasks and cloth_hang.
-FRAMES_PER_EPISODE = {"rigid": 2, CLOTH_TASK: 4}
+#: Where eval writes by default, per kind of task.
 OUTPUT = {"rigid": Path("outputs/sim_eval"), CLOTH_TASK: Path("outputs/eval/cloth_hang")}
 RIGID_ONLY = {
     "predictor": "--predictor",
@@ -70,11 +70,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_threads_argument(generate)
     cloth = generate.add_argument_group("cloth_hang only")
     cloth.add_argument(
-        "--dataset", choices=DATASET_KINDS, default=None, help="which dataset(s) to write (default: both, to "
-        "ROOT/goal and ROOT/policy, their repo ids suffixed _goal and _policy)"
+        "--dataset",
+        choices=DATASET_KINDS,
+        default=None,
+        help="which dataset(s) to write (default: both, to "
+        "ROOT/goal and ROOT/policy, their repo ids suffixed _goal and _policy)",
     )
-    cloth.add_argument("--object-cloud-size", type=int, default=None, help="cloth points stored per frame (512)")
-    cloth.add_argument("--scene-cloud-size", type=int, default=None, help="hanger points stored per frame (512)")
+    cloth.add_argument(
+        "--object-cloud-size", type=int, default=None, help="cloth points stored per frame (default: 512)"
+    )
+    cloth.add_argument(
+        "--scene-cloud-size", type=int, default=None, help="hanger points stored per frame (default: 512)"
+    )
     cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
 
     evaluate = verbs.add_parser("eval", help="evaluate a goal predictor (cloth_hang: and an executor), held out")
@@ -90,8 +97,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=0, help="trial i uses scene seed SEED + i (default: 0)")
     evaluate.add_argument("--split", choices=SPLITS, default="test", help="geometry split (default: test, held out)")
     evaluate.add_argument(
-        "--output", type=Path, default=None, help="folder for the JSON and PNGs (default: outputs/sim_eval; "
-        "cloth_hang: outputs/eval/cloth_hang)"
+        "--output",
+        type=Path,
+        default=None,
+        help="folder for the JSON and PNGs (default: outputs/sim_eval; cloth_hang: outputs/eval/cloth_hang)",
     )
     evaluate.add_argument("--figures", type=int, default=3, help="trials to draw as PNGs (default: 3)")
     add_deprecated_alias(evaluate, "--plots", "--figures", "figures", type=int)
@@ -179,8 +188,6 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
 
 def _generate(args: argparse.Namespace, command: str) -> int:
     if args.task == CLOTH_TASK:
-        import json
-
         from lerobot_taxdpd.sim.cloth.datasets import generate
 
         summary = generate(
@@ -189,13 +196,15 @@ def _generate(args: argparse.Namespace, command: str) -> int:
             episodes=args.episodes,
             root=args.root,
             repo_id=args.repo_id,
-            kind=args.dataset or "both",
-            frames_per_episode=args.frames_per_episode or FRAMES_PER_EPISODE[CLOTH_TASK],
-            object_cloud_size=args.object_cloud_size or 512,
-            scene_cloud_size=args.scene_cloud_size or 512,
             workers=_workers(args),
             overwrite=args.overwrite,
             command=command,
+            **_given(
+                kind=args.dataset,
+                frames_per_episode=args.frames_per_episode,
+                object_cloud_size=args.object_cloud_size,
+                scene_cloud_size=args.scene_cloud_size,
+            ),
         )
         print(json.dumps(summary, indent=2))
         return 0
@@ -209,12 +218,17 @@ def _generate(args: argparse.Namespace, command: str) -> int:
         repo_id=args.repo_id,
         root=args.root,
         seed=args.seed,
-        frames_per_episode=args.frames_per_episode or FRAMES_PER_EPISODE["rigid"],
         overwrite=args.overwrite,
         command=command,
+        **_given(frames_per_episode=args.frames_per_episode),
     )
     print(f"wrote {args.episodes} {args.task} demonstrations ({args.split} geometry) to {root}")
     return 0
+
+
+def _given(**options) -> dict:
+    """The options the user gave (not None): the others keep the defaults of the function they go to."""
+    return {name: value for name, value in options.items() if value is not None}
 
 
 def _workers(args: argparse.Namespace) -> int:
@@ -225,8 +239,6 @@ def _workers(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cloth(args: argparse.Namespace) -> int:
-    import json
-
     from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_goal_predictor
 
     output = args.output or OUTPUT[CLOTH_TASK]
@@ -238,8 +250,8 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
         policy_path=args.policy_path,
         goal_policy_path=args.goal_policy_path,
         ground_truth_goals=bool(args.ground_truth_goals),
+        **_given(goal_threshold=args.goal_threshold),
         num_goal_samples=args.num_samples,
-        goal_threshold=0.5 if args.goal_threshold is None else args.goal_threshold,
         figures=args.figures,
         workers=_workers(args),
         device=args.device,
