@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import rerun as rr
 
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
@@ -30,12 +31,6 @@ APPLICATION = "lerobot_taxdpd"
 GREY, BLUE, GREEN, RED = (150, 150, 150), (31, 119, 180), (44, 160, 44), (214, 39, 40)
 CLOUD_COLOURS = {SCENE_KEY: GREY, OBJECT_KEY: BLUE, ACTION_KEY: GREEN, GOAL_CLOUD_KEY: GREEN}
 CORRESPONDENCES = 48  # start-to-goal arrows drawn per frame
-
-
-def _rerun():
-    import rerun as rr
-
-    return rr
 
 
 def _radius(points: np.ndarray) -> float:
@@ -54,7 +49,8 @@ def log_dataset_episode(root: Path, episode: int, repo_id: str) -> int:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
     from lerobot.datasets.utils import DEFAULT_FEATURES
 
-    rr = _rerun()
+    if not (Path(root) / "meta" / "info.json").is_file():  # else LeRobot would look for it on the Hub
+        raise FileNotFoundError(f"--root: {root} is not a LeRobot dataset folder (no meta/info.json)")
     meta = LeRobotDatasetMetadata(repo_id, root=root)
     if not 0 <= episode < meta.total_episodes:
         raise ValueError(f"--episode: {root} has episodes 0..{meta.total_episodes - 1}, got {episode}")
@@ -99,7 +95,6 @@ def log_trial(task_name: str, goal_policy_path: str, seed: int, split: str, num_
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
-    rr = _rerun()
     trial = make_trial(get_task(task_name), seed, split)
     predictor = load_goal_predictor(goal_policy_path, device=device)
     run = run_trial(predictor, trial, num_samples)
@@ -144,7 +139,6 @@ def log_trial(task_name: str, goal_policy_path: str, seed: int, split: str, num_
 
 
 def _open_sink(save: Path | None) -> None:
-    rr = _rerun()
     rr.init(APPLICATION)
     if save is not None:
         save.parent.mkdir(parents=True, exist_ok=True)
@@ -202,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 1
     if args.save is not None:
-        _rerun().disconnect()  # flush the recording to the file
+        rr.disconnect()  # flush the recording to the file
         print(f"recording: {args.save} (open it with `rerun {args.save}`)")
     return 0
 
