@@ -102,11 +102,10 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
 
 @dataclass(frozen=True)
 class TrialRun:
-    """One trial as the harness runs it: the K samples, the pose fitted to the first, what executing it did,
-    and the trial's record of the report."""
+    """One trial as the harness runs it: the K samples, what executing the first did, and the trial's record
+    of the report."""
 
     samples: np.ndarray  # (K, N_O, 3) float64, metres
-    transform: np.ndarray  # (4, 4): goal = transform @ start, fitted to samples[0]
     outcome: Outcome
     record: dict
     predict_seconds: float
@@ -128,7 +127,7 @@ def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int) -> Trial
         "reached_goal": outcome.reached_goal,
         **score_trial(trial, samples, transform),
     }
-    return TrialRun(samples, transform, outcome, record, predict_seconds)
+    return TrialRun(samples, outcome, record, predict_seconds)
 
 
 def evaluate(
