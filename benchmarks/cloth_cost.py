@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from lerobot_taxdpd.maths.metrics import success_summary
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
@@ -28,6 +29,7 @@ from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 
 def expert_costs(split: str, seeds: range) -> dict:
@@ -36,7 +38,7 @@ def expert_costs(split: str, seeds: range) -> dict:
     per_phase: dict[str, list[float]] = {"approach": [], "thread": []}
     episodes, releases, successes = [], [], 0
     try:
-        for seed in seeds:
+        for seed in tqdm(seeds, desc=f"expert episodes ({split})"):
             scene = sample_scene(split, seed, env.ranges)
             started = time.perf_counter()
             env.reset(options={"scene": scene})
@@ -115,7 +117,9 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1000, help="first scene seed (away from the datasets' seeds)")
     parser.add_argument("--no-policy", action="store_true", help="skip the gc_dp3 latency figures")
     parser.add_argument("--output", type=Path, default=Path("results/cloth_cost.json"))
+    add_threads_argument(parser)
     args = parser.parse_args()
+    configure_threads(args.threads)
     report = {
         "command": shlex.join([sys.executable, *sys.argv]),
         "machine": machine_info(),

@@ -82,7 +82,7 @@ def conversion_rate(num_demos: int, repeats: int, workdir: Path) -> dict:
         "child_points": 30_000,
         "parent_points": 60_000,
         "sampled_object_scene_points": [512, 1024],
-        "frames_per_demo": 2,
+        "frames_per_episode": 2,
         "median_demos_per_s": statistics.median(rates),
         "runs_demos_per_s": rates,
     }

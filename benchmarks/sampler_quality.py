@@ -22,6 +22,7 @@ import torch
 from lerobot_taxdpd import TaxDPDPolicy
 from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 SAMPLERS = (("ddpm", 100), ("ddim", 100), ("ddim", 20), ("ddim", 10), ("ddim", 5), ("ddim", 3))
 
@@ -35,7 +36,9 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=10)
     parser.add_argument("--yaw-range", type=float, default=None, help="default: the demo's, from its report")
     parser.add_argument("--output", default="results/sampler_quality.json")
+    add_threads_argument(parser)
     args = parser.parse_args()
+    configure_threads(args.threads)
 
     policy = TaxDPDPolicy.from_pretrained(args.checkpoint)
     demo_report = args.checkpoint.parents[3] / "metrics.json"

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.predictors import OraclePredictor
@@ -32,7 +34,7 @@ def calibrate(task_name: str, trials: int, seed: int, error: tuple[float, float]
     """Success of exact goals and failure of goals off by `error` (metres, degrees; default: the task's)."""
     task = get_task(task_name)
     started = time.perf_counter()
-    scenes = [make_trial(task, seed + i, "test") for i in range(trials)]
+    scenes = [make_trial(task, seed + i, "test") for i in tqdm(range(trials), desc=f"{task_name} scenes")]
     translation, angle = error or task.perturbation
     errors = {
         "ground_truth": (0.0, 0.0),

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import execute, make_trial
@@ -35,7 +37,7 @@ def _timed(run, *args, **kwargs) -> tuple[float, object]:
 def measure(task_name: str, trials: int, seed: int) -> dict:
     task = get_task(task_name)
     observe, place, episode = [], [], []
-    for i in range(trials):
+    for i in tqdm(range(trials), desc=task_name):
         seconds, trial = _timed(make_trial, task, seed + i, "test")
         observe.append(seconds)
         place.append(_timed(execute, trial, trial.goal_transform)[0])

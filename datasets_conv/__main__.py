@@ -7,6 +7,9 @@ import shlex
 import sys
 from pathlib import Path
 
+from lerobot_taxdpd.cli_options import add_deprecated_alias
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
+
 PROG = "taxdpd-convert"
 
 DESCRIPTION = """\
@@ -26,7 +29,7 @@ examples:
 
 A bad demo stops the run with an error naming the file and the field, and nothing is written; add
 --skip-invalid to convert the rest and list the skipped demos in the summary and the dataset card.
-To push, log in first (`huggingface-cli login`, or set HF_TOKEN), then add --push [--private].
+To push, log in first (`hf auth login`, or set HF_TOKEN), then add --push [--private].
 """
 
 SOURCE_HELP = {
@@ -52,7 +55,7 @@ unpickles them (the format needs it): only convert files from a source you trust
   {train,val,val_ood}.zarr                 --kind policy: DP3 zarr rollouts for the gc_dp3 policy
 --split test selects val_ood. A folder of demo_*.npz or a single .zarr store works with --split all.
 Only the true cloth vertices (data/cloth) are sampled, never the zero padding. --kind policy writes one
-frame per step (--frames-per-demo does not apply). Units: DEDO simulation units, as in the source. No
+frame per step (--frames-per-episode does not apply). Units: DEDO simulation units, as in the source. No
 pickled field is read.""",
     ),
     "nist": (
@@ -84,8 +87,9 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene-cloud-size", type=int, help="scene points stored per frame (default: the task's)")
     parser.add_argument("--split", choices=("train", "val", "test", "all"), default="all", help="default: all")
     parser.add_argument(
-        "--frames-per-demo", type=int, default=2, help="independent samplings per demo (>= 2; default: 2)"
+        "--frames-per-episode", type=int, default=2, help="independent samplings per demo (>= 2; default: 2)"
     )
+    add_deprecated_alias(parser, "--frames-per-demo", "--frames-per-episode", "frames_per_episode", type=int)
     parser.add_argument("--seed", type=int, default=0, help="seed of the samplings (and NIST's split); default: 0")
     parser.add_argument("--task", help="override the plain-language task string")
     parser.add_argument("--skip-invalid", action="store_true", help="skip bad demos instead of stopping")
@@ -93,6 +97,7 @@ def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--license", dest="hub_license", metavar="LICENSE", help="licence tag of the Hub card (default: other)"
     )
+    add_threads_argument(parser)
     _push_arguments(parser, optional=True)
 
 
@@ -143,7 +148,7 @@ def _convert(args: argparse.Namespace, root: Path, command: str):
     options = ConversionOptions(
         object_cloud_size=args.object_cloud_size,
         scene_cloud_size=args.scene_cloud_size,
-        frames_per_demo=args.frames_per_demo,
+        frames_per_episode=args.frames_per_episode,
         split=args.split,
         seed=args.seed,
         skip_invalid=args.skip_invalid,
@@ -173,7 +178,7 @@ def _push(root: Path, repo_id: str, private: bool) -> int:
     except Exception as exc:  # noqa: BLE001 - any Hub/network failure leaves the local dataset intact
         print(
             f"error: pushing {root} to the Hub as {repo_id} failed ({type(exc).__name__}: {exc}).\n"
-            f"The dataset on disk is complete. Log in (`huggingface-cli login` or HF_TOKEN) and retry with:\n"
+            f"The dataset on disk is complete. Log in (`hf auth login` or HF_TOKEN) and retry with:\n"
             f"  {PROG} push --root {shlex.quote(str(root))} --repo-id {repo_id}" + (" --private" if private else ""),
             file=sys.stderr,
         )
@@ -197,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     from datasets_conv.raw_io import DemoError
     from lerobot_taxdpd.data.validation import PointCloudError
 
+    configure_threads(args.threads)
     root = args.root if args.root is not None else HF_LEROBOT_HOME / args.repo_id
     try:
         summary = _convert(args, root, shlex.join([PROG, *argv]))

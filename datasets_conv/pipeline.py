@@ -41,7 +41,7 @@ class ConversionOptions:
 
     object_cloud_size: int | None = None
     scene_cloud_size: int | None = None
-    frames_per_demo: int = 2
+    frames_per_episode: int = 2
     split: str = "all"
     seed: int = 0
     skip_invalid: bool = False
@@ -53,9 +53,9 @@ class ConversionOptions:
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
             raise ValueError(f"split: expected one of {SPLITS}, got {self.split!r}")
-        if self.frames_per_demo < 2:
+        if self.frames_per_episode < 2:
             raise ValueError(
-                f"frames_per_demo: LeRobot 0.4.4 needs at least 2 frames per episode, got {self.frames_per_demo}"
+                f"frames_per_episode: LeRobot 0.4.4 needs at least 2 frames per episode, got {self.frames_per_episode}"
             )
         for name in ("object_cloud_size", "scene_cloud_size"):
             value = getattr(self, name)
@@ -123,15 +123,15 @@ def sampled_frames(
     goal_points: np.ndarray | None = None,
     transform: np.ndarray | None = None,
 ) -> list[dict[str, np.ndarray]]:
-    """The frames of one demo: `options.frames_per_demo` farthest-point samplings of its clouds.
+    """The frames of one demo: `options.frames_per_episode` farthest-point samplings of its clouds.
 
     The goal rows are taken with the object's indices from `goal_points`, or, for rigid sources, computed
     as `transform` applied to the sampled object, so row i of every goal is where row i of its start goes.
     Samplings depend only on the seed and `source` (see `demo_rng`).
     """
     rng = demo_rng(options.seed, source)
-    object_views = sampling_indices(object_points, counts[0], options.frames_per_demo, rng)
-    scene_views = sampling_indices(scene_points, counts[1], options.frames_per_demo, rng)
+    object_views = sampling_indices(object_points, counts[0], options.frames_per_episode, rng)
+    scene_views = sampling_indices(scene_points, counts[1], options.frames_per_episode, rng)
     frames = []
     for object_index, scene_index in zip(object_views, scene_views, strict=True):
         points = object_points[object_index]
@@ -192,6 +192,6 @@ def card_details(options: ConversionOptions, object_cloud_size: int, scene_cloud
         "split": options.split,
         "sampling": (
             f"farthest point sampling, {object_cloud_size} object / {scene_cloud_size} scene points; "
-            f"{options.frames_per_demo} samplings per demo seeded by random start indices (seed {options.seed})"
+            f"{options.frames_per_episode} samplings per demo seeded by random start indices (seed {options.seed})"
         ),
     }

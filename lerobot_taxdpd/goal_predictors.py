@@ -66,12 +66,49 @@ def resolve_goal_predictor(name_or_path: str | Path) -> str:
     )
 
 
-def load_goal_predictor(name_or_path: str | Path, **kwargs):
-    """A ready `TaxDPDPolicy` (eval mode) for a shipped name, a checkpoint folder or a Hub repo id."""
+def load_goal_predictor(name_or_path: str | Path, device: str | None = None, **kwargs):
+    """A ready `TaxDPDPolicy` (eval mode) for a shipped name, a checkpoint folder or a Hub repo id.
+
+    `device` ("cpu", "cuda", "cuda:1", ...) is where the weights load and the sampling runs (default: the
+    checkpoint's own, "cpu" for the shipped ones); `kwargs` go to `from_pretrained` (revision, cache_dir, ...).
+    """
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.utils.utils import is_torch_device_available
+
     from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 
-    policy = TaxDPDPolicy.from_pretrained(resolve_goal_predictor(name_or_path), **kwargs)
+    source = resolve_goal_predictor(name_or_path)
+    if device is not None and not is_torch_device_available(device):
+        raise ValueError(f"device: {device!r} is not available on this machine (try 'cpu')")
+    try:
+        if device is not None:
+            hub_kwargs = {key: kwargs[key] for key in ("revision", "cache_dir", "force_download") if key in kwargs}
+            kwargs["config"] = PreTrainedConfig.from_pretrained(source, **hub_kwargs)
+            kwargs["config"].device = device
+        policy = TaxDPDPolicy.from_pretrained(source, **kwargs)
+    except OSError as error:
+        if Path(source).is_dir():
+            raise
+        raise FileNotFoundError(_hub_failure(source)) from error
     return policy.eval()
+
+
+def _hub_failure(repo_id: str) -> str:
+    """Why a Hub id did not load, told apart for offline mode (nothing cached) and online failures."""
+    from huggingface_hub import constants
+
+    if constants.HF_HUB_OFFLINE:
+        return (
+            f"goal predictor {repo_id!r}: HF_HUB_OFFLINE is set and it is not in the local Hugging Face cache "
+            f"({constants.HF_HUB_CACHE}). Download it once with network access (`hf download {repo_id}`, or load "
+            "it once without HF_HUB_OFFLINE), or pass a checkpoint folder or a shipped name "
+            f"({', '.join(_shipped()) or 'none in this install'})."
+        )
+    return (
+        f"goal predictor {repo_id!r}: not found on the Hugging Face Hub nor in the local cache. Check the id; "
+        "a private repository needs `hf auth login` (or HF_TOKEN); without network access, download it "
+        f"elsewhere with `hf download {repo_id}` and copy the cache ({constants.HF_HUB_CACHE})."
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,14 +17,14 @@ from lerobot_taxdpd.data.schema import (
     STATE_KEY,
     SUCCESS_KEY,
 )
-from lerobot_taxdpd.sim.cloth.cli import main
+from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.cloth.env import SimSettings
 
 
 @pytest.fixture(scope="module")
 def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("cloth") / "demos"
-    argv = ["generate", "--task", "cloth_hang", "--episodes", "2", "--seed", "3", "--views", "3"]
+    argv = ["generate", "--task", "cloth_hang", "--episodes", "2", "--seed", "3", "--frames-per-episode", "3"]
     assert main([*argv, "--repo-id", "local/cloth_hang", "--root", str(root)]) == 0
     goal = LeRobotDataset("local/cloth_hang_goal", root=root / "goal")
     policy = LeRobotDataset("local/cloth_hang_policy", root=root / "policy")
@@ -71,15 +71,30 @@ def test_policy_dataset_round_trips(datasets):
     assert (root / "policy" / "README.md").is_file()
 
 
-def test_generate_refuses_to_overwrite_and_bad_arguments(datasets, tmp_path):
+def test_generate_refuses_to_overwrite_and_bad_arguments(datasets, tmp_path, capsys):
     root, _, _ = datasets
     argv = ["generate", "--task", "cloth_hang", "--repo-id", "local/x"]
-    with pytest.raises(FileExistsError, match="already exists"):
-        main([*argv, "--episodes", "1", "--root", str(root), "--dataset", "both"])
-    with pytest.raises(ValueError, match="episodes"):
-        main([*argv, "--episodes", "0", "--root", str(tmp_path / "new")])
-    with pytest.raises(ValueError, match="views"):
-        main([*argv, "--episodes", "1", "--views", "1", "--root", str(tmp_path / "new")])
+    for options, message in [
+        (["--episodes", "1", "--root", str(root), "--dataset", "both"], "already exists"),
+        (["--episodes", "0", "--root", str(tmp_path / "new")], "episodes"),
+        (["--episodes", "1", "--frames-per-episode", "1", "--root", str(tmp_path / "new")], "--frames-per-episode"),
+        (["--episodes", "1", "--views", "1", "--root", str(tmp_path / "new")], "--views is deprecated"),
+    ]:
+        assert main([*argv, *options]) == 1
+        assert message in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([*argv, "--episodes", "1", "--root", str(tmp_path / "new"), "--task", "mug_rack"])
     assert not (tmp_path / "new").exists()
+
+
+def test_the_viewer_shows_a_policy_episode_with_its_grippers_and_numbers(datasets, tmp_path):
+    import rerun.dataframe as rrd
+
+    from lerobot_taxdpd.viewer import main as viewer
+
+    root, _, policy = datasets
+    recording = tmp_path / "policy.rrd"
+    assert viewer(["dataset", "--root", str(root / "policy"), "--episode", "0", "--save", str(recording)]) == 0
+    entities = {column.entity_path for column in rrd.load_recording(recording).schema().component_columns()}
+    assert {f"/{OBJECT_KEY}", f"/{SCENE_KEY}", f"/{GOAL_CLOUD_KEY}", "/grippers"} <= entities
+    assert {f"/plots/{STATE_KEY}/11", f"/plots/{ACTION_KEY}/5"} <= entities

@@ -17,7 +17,7 @@ from lerobot_taxdpd import GcDp3Config, TaxDPDConfig, load_goal_predictor, make_
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
 from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
-from lerobot_taxdpd.sim.cloth.cli import main
+from lerobot_taxdpd.sim.cli import main
 
 CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))
 
@@ -76,10 +76,10 @@ def checkpoints(tmp_path_factory):
 def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     gc_dp3, taxdpd = checkpoints
     out = tmp_path / "eval"
-    argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--plots", "1"]
+    argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--figures", "1"]
     argv += ["--policy.path", str(gc_dp3), "--goal-policy.path", str(taxdpd), "--ground-truth-goals"]
     assert main([*argv, "--num-samples", "3", "--output", str(out), "--ship", str(tmp_path / "shipped")]) == 0
-    summary = json.loads((out / "eval_cloth_hang.json").read_text())
+    summary = json.loads((out / "cloth_hang_eval.json").read_text())
     assert summary["trials"] == 2 and summary["workers"] == 2 and summary["config"]["split"] == "test"
     assert summary["machine"]["cpu_count"] >= 1 and summary["machine"]["torch_threads"] >= 1
     for name in ("ground_truth_goal", "predicted_goal"):
@@ -95,9 +95,9 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     metrics = summary["goal_metrics"]
     assert 0.0 < metrics["precision_rmse"] and 0.0 < metrics["coverage_rmse"]
     assert 0.0 <= metrics["coverage"] <= 1.0 and 0.0 <= metrics["precision"] <= 1.0
-    plots = sorted((out / "plots").glob("*.png"))
-    assert [p.name for p in plots] == ["test_0008.png"]
-    assert plots[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    figures = sorted((out / "figures").glob("*.png"))
+    assert [p.name for p in figures] == ["test_0008.png"]
+    assert figures[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert summary["median_seconds_per_trial"] > 0
     shipped = load_goal_predictor(tmp_path / "shipped" / "cloth_hang")
     assert shipped.metrics["task"] == "cloth_hang" and shipped.metrics["success"] == {
@@ -106,13 +106,15 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
 
 
-def test_eval_explains_what_is_missing(checkpoints, tmp_path):
+def test_eval_explains_what_is_missing(checkpoints, tmp_path, capsys):
     gc_dp3, _ = checkpoints
     base = ["eval", "--task", "cloth_hang", "--trials", "1", "--output", str(tmp_path)]
-    with pytest.raises(ValueError, match="goal-policy.path"):
-        main([*base, "--policy.path", str(gc_dp3)])
-    with pytest.raises(FileNotFoundError, match="--policy.path"):
-        main([*base, "--policy.path", str(tmp_path / "nowhere"), "--ground-truth-goals"])
-    with pytest.raises(ValueError, match="trials"):
-        main([*base[:-4], "--trials", "0", "--policy.path", str(gc_dp3), "--ground-truth-goals"])
+    for argv, message in [
+        ([*base, "--policy.path", str(gc_dp3)], "give --goal-policy.path"),
+        ([*base, "--policy.path", str(tmp_path / "nowhere"), "--ground-truth-goals"], "--policy.path: "),
+        ([*base[:-4], "--trials", "0", "--policy.path", str(gc_dp3), "--ground-truth-goals"], "trials"),
+        ([*base, "--predictor", "oracle"], "--predictor: only applies to a rigid task"),
+    ]:
+        assert main(argv) == 1
+        assert message in capsys.readouterr().err
     assert not np.any([p.suffix == ".json" for p in tmp_path.iterdir()])

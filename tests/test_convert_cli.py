@@ -49,7 +49,7 @@ def test_convert_prints_summary_and_lerobot_loads_and_trains_on_the_result(tmp_p
     root = tmp_path / "out"
     result = convert(
         "rpdiff", "--raw-dir", _rpdiff_dir(tmp_path, 3), "--repo-id", "me/rpdiff_mug_easyrack", "--root", root,
-        "--frames-per-demo", "3", module=True,
+        "--frames-per-episode", "3", module=True,
     )
     assert result.returncode == 0, result.stderr
     for line in ("demos read : 3", "converted  : 3 episodes, 9 frames", "skipped    : 0", f"output     : {root}"):
@@ -97,7 +97,7 @@ def test_push_offline_keeps_the_dataset_and_says_how_to_retry(tmp_path, capsys):
     result = capsys.readouterr()
     assert "converted  : 2 episodes" in result.out
     assert "Offline" in result.err, "the upload must reach huggingface_hub, which refuses offline"
-    assert "huggingface-cli login" in result.err
+    assert "hf auth login" in result.err
     assert f"taxdpd-convert push --root {root} --repo-id me/nist --private" in result.err
     readme = (root / "README.md").read_text()
     assert "license: mit" in readme and "- taxdpd" in readme and "- nist" in readme

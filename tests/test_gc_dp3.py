@@ -147,3 +147,11 @@ def test_observation_with_nan_is_refused():
     obs[GOAL_CLOUD_KEY][0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match=GOAL_CLOUD_KEY):
         policy.select_action(obs)
+
+
+def test_a_saved_checkpoint_gets_its_own_model_card(tmp_path):
+    GcDp3Policy(make_config()).save_pretrained(tmp_path)
+    card = (tmp_path / "README.md").read_text()
+    assert "# gc_dp3: goal-conditioned 3D Diffusion Policy" in card and "not recognized" not in card
+    assert "load_gc_dp3(" in card and "pip install lerobot_policy_taxdpd" in card
+    assert "| `down_dims` | `(16, 32)` |" in card

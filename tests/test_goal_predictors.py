@@ -4,9 +4,11 @@ errors a user sees for anything else."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import pytest
 import torch
+from huggingface_hub import ModelCard
 from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import install_in_hub_cache, run_cli
@@ -42,6 +44,25 @@ def test_a_hub_id_resolves_through_the_offline_cache(tmp_path, hf_home):
     assert load_goal_predictor("taxdpd-tests/by-name").metrics == {"rmse_mm": 2.0}
 
 
+def test_a_hub_id_missing_from_the_offline_cache_says_so_and_how_to_get_it():
+    with pytest.raises(FileNotFoundError, match="HF_HUB_OFFLINE is set and it is not in the local") as error:
+        load_goal_predictor("taxdpd-tests/never-downloaded")
+    assert "Hugging Face cache" in str(error.value)
+    assert "hf download taxdpd-tests/never-downloaded" in str(error.value)
+
+
+def test_the_device_is_chosen_at_loading(tmp_path):
+    _saved_policy(tmp_path / "model")
+    policy = load_goal_predictor(tmp_path / "model", device="cpu")
+    assert policy.config.device == "cpu" and next(policy.parameters()).device.type == "cpu"
+    if torch.cuda.is_available():
+        policy = load_goal_predictor(tmp_path / "model", device="cuda")
+        assert policy.config.device == "cuda" and next(policy.parameters()).is_cuda
+    else:
+        with pytest.raises(ValueError, match="device: 'cuda' is not available on this machine"):
+            load_goal_predictor(tmp_path / "model", device="cuda")
+
+
 def test_unknown_names_list_the_shipped_ones():
     with pytest.raises(ValueError, match="unknown goal predictor 'no_such_task'.*shipped names") as error:
         resolve_goal_predictor("no_such_task")
@@ -71,9 +92,39 @@ def test_every_shipped_predictor_loads_by_name_and_states_its_measured_metrics(n
     shapes = policy.config.input_features
     n_o, n_s = shapes["observation.pointcloud.object"].shape[0], shapes["observation.pointcloud.scene"].shape[0]
     generator = torch.Generator().manual_seed(0)
-    goals = policy.sample_goals(torch.rand(1, n_o, 3) * 0.05, torch.rand(1, n_s, 3) * 0.3, 2, generator=generator)
+    size = policy.config.object_scale / policy.config.point_scale  # its training objects' radius
+    obj, scene = torch.rand(1, n_o, 3) * size, torch.rand(1, n_s, 3) * 5 * size
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inputs at the trained scale raise no unit warning
+        goals = policy.sample_goals(obj, scene, 2, generator=generator)
     assert goals.shape == (1, 2, n_o, 3) and bool(torch.isfinite(goals).all())
     # its saved processors name their steps by registry name, which the package registers wherever it lives
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(folder))
     assert "UnpackEnvironmentPointCloudsStep" in [type(step).__name__ for step in preprocessor.steps]
     assert type(postprocessor.steps[-1]).__name__ == "FlattenGoalCloudStep"
+
+
+@pytest.mark.parametrize("name", sorted(list_goal_predictors()))
+def test_every_shipped_card_names_its_task_reports_its_metrics_for_the_hub_and_runs(name):
+    folder = SHIPPED_DIR / name
+    metrics = json.loads((folder / "metrics.json").read_text())
+    policy = load_goal_predictor(name)
+    fresh = policy.generate_model_card(None, policy.name, policy.config.license, policy.config.tags)
+    shipped = (folder / "README.md").read_text()
+    assert shipped.strip() == str(fresh).strip(), (
+        f"{folder}/README.md is stale: regenerate it from metrics.json with "
+        "load_goal_predictor(name).generate_model_card(None, 'taxdpd', None, None).save(path)"
+    )
+    card = ModelCard.load(folder / "README.md")
+    assert f"# TAX-DPD goal predictor for `{name}`" in card.text and "pip install lerobot_policy_taxdpd" in card.text
+    assert "## Limitations" in card.text and f"{metrics['success']['success_rate']:.0%}" in card.text
+    results = {result.metric_type: result.metric_value for result in card.data.eval_results}
+    assert results["success_rate"] == pytest.approx(metrics["success"]["success_rate"])
+    if "translation_error_mm" in metrics:
+        assert results["translation_error_mm"] == pytest.approx(metrics["translation_error_mm"]["median"], abs=1e-4)
+    assert {result.dataset_split for result in card.data.eval_results} == {"test"}
+    example = card.text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert f'load_goal_predictor("{name}")' in example
+    namespace: dict = {}
+    exec(compile(example, f"{name}/README.md", "exec"), namespace)  # the card's example runs as written
+    assert namespace["goals"].shape[:2] == (1, 10)

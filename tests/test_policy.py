@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -121,6 +122,34 @@ def test_bad_input_names_the_argument(obj, scene, message):
         tiny_policy().sample_goals(obj, scene, 1)
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"sampler": "DDIM"}, r"sampler: must be one of \['ddim', 'ddpm'\], got 'DDIM'"),
+        ({"num_inference_steps": 0}, "num_inference_steps: must divide num_train_timesteps=100"),
+        ({"num_inference_steps": 7}, "got 7"),
+        ({"num_samples": 0}, "num_samples: must be a positive integer"),
+    ],
+)
+def test_bad_sampling_options_name_the_option(options, message):
+    obj, scene = clouds(1)
+    options = {"num_samples": 1, **options}
+    with pytest.raises(ValueError, match=message):
+        tiny_policy().sample_goals(obj, scene, **options)
+
+
+def test_inputs_in_the_wrong_units_are_flagged_with_the_likely_cause():
+    policy = tiny_policy()  # trained scale: radius 3 model units at point_scale 20, i.e. 0.15 m objects
+    obj, scene = clouds(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # metres: no warning
+        policy.sample_goals(obj, scene, 1)
+    with pytest.warns(UserWarning, match=r"object_points: the object's radius is .* these look like millimetres"):
+        policy.sample_goals(obj * 1000, scene * 1000, 1)
+    with pytest.warns(UserWarning, match="observation.pointcloud.object: .* check the units"):
+        policy.train().forward({OBJECT_KEY: obj * 50, SCENE_KEY: scene * 50, ACTION_KEY: obj * 50})
+
+
 def test_training_batch_with_mismatched_goal_is_rejected():
     policy = tiny_policy().train()
     obj, scene = clouds()
@@ -160,7 +189,11 @@ def test_processor_batches_a_single_sample_and_unpacks_env_clouds():
 
 def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path):
     policy = tiny_policy()
-    policy.metrics = {"success_rate": 0.93, "translation_error_mm": 1.25}
+    policy.metrics = {
+        "task": "insert_ssd",
+        "success": {"success_rate": 0.93, "ci95_low": 0.86, "ci95_high": 0.97, "trials": 100},
+        "translation_error_mm": {"median": 1.25, "mean": 1.5, "p90": 2.5},
+    }
     policy.save_pretrained(tmp_path)
     loaded = TaxDPDPolicy.from_pretrained(tmp_path)
     assert loaded.config.point_scale == 20.0 and loaded.metrics == policy.metrics
@@ -168,7 +201,9 @@ def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path)
     expected = policy.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1))
     assert torch.equal(loaded.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(1)), expected)
     card = (tmp_path / "README.md").read_text()
-    assert "| `use_gmm` | `True` |" in card and "| success_rate | 0.93 |" in card and "library_name: lerobot" in card
+    assert "| `use_gmm` | `True` |" in card and "library_name: lerobot" in card
+    assert "# TAX-DPD goal predictor for `insert_ssd`" in card and 'load_goal_predictor("insert_ssd")' in card
+    assert "success 93% (95% CI 86%-97%, 100 trials)" in card
     pushed_card = str(loaded.generate_model_card("me/slots", "taxdpd", None, ["extra"]))
     assert "datasets:" in pushed_card and "me/slots" in pushed_card and "translation_error_mm" in pushed_card
 

@@ -160,20 +160,48 @@ def test_command_line_errors_name_the_argument(tmp_path, capsys):
     )
     assert "--trials" in capsys.readouterr().err
     missing = tmp_path / "no_checkpoint_here"
-    assert (
-        main(
-            ["eval", "--task", "insert_ssd", "--policy.path", str(missing), "--trials", "1", "--output", str(tmp_path)]
-        )
-        == 1
-    )
-    assert f"--policy.path {missing}: not a loadable TAX-DPD checkpoint" in capsys.readouterr().err
+    base = ["eval", "--task", "insert_ssd", "--trials", "1", "--output", str(tmp_path)]
+    assert main([*base, "--goal-policy.path", str(missing)]) == 1
+    assert f"--goal-policy.path {missing}: not a loadable TAX-DPD checkpoint" in capsys.readouterr().err
+    assert main([*base, "--policy.path", str(missing)]) == 1  # the old spelling, for a goal predictor
+    err = capsys.readouterr().err
+    assert "--policy.path for a goal predictor is deprecated, use --goal-policy.path" in err
+    assert f"--goal-policy.path {missing}: not a loadable" in err
+    assert main([*base, "--predictor", "oracle", "--ground-truth-goals"]) == 1
+    assert "--ground-truth-goals: only applies to --task cloth_hang" in capsys.readouterr().err
+    assert main(base) == 1
+    assert "--goal-policy.path or --predictor: give exactly one" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["eval", "--task", "no_such_task", "--predictor", "oracle"])
     assert "invalid choice" in capsys.readouterr().err
 
 
-def test_cloth_hang_is_handed_to_the_cloth_command_line(capsys):
+def test_help_shows_every_tasks_options_and_hides_old_spellings(capsys):
     with pytest.raises(SystemExit) as exit_info:
-        main(["eval", "--task", "cloth_hang", "--help"])
+        main(["eval", "--help"])
     assert exit_info.value.code == 0
-    assert "--goal-policy.path" in capsys.readouterr().out  # an option only the cloth task has
+    shown = capsys.readouterr().out
+    for option in ("--goal-policy.path", "--policy.path", "--ground-truth-goals", "--workers", "--predictor"):
+        assert option in shown
+    assert "cloth_hang only" in shown and "--plots" not in shown
+
+
+def _without_timings(report: dict) -> dict:
+    timing = {"seconds", "predict_seconds", "seconds_per_trial", "predict_seconds_per_trial", "wall_seconds"}
+    kept = {key: value for key, value in report.items() if key not in timing | {"machine"}}
+    kept["per_trial"] = [{k: v for k, v in trial.items() if k not in timing} for trial in report["per_trial"]]
+    return kept
+
+
+def test_the_same_eval_command_gives_the_same_numbers(tmp_path):
+    """Fresh processes start torch's global generator from a random seed: every draw must come from the trial."""
+    reports = []
+    for run in range(2):
+        output = tmp_path / str(run)
+        run_cli(
+            "python", "-m", "lerobot_taxdpd.sim", "eval", "--task", "insert_waterproof", "--goal-policy.path",
+            "insert_waterproof", "--seed", "0", "--trials", "1", "--num-samples", "3", "--figures", "0",
+            "--output", output,
+        )
+        reports.append(json.loads((output / "insert_waterproof_eval.json").read_text()))
+    assert _without_timings(reports[0]) == _without_timings(reports[1])

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import gymnasium as gym
+import imageio
 import numpy as np
 import pytest
 import torch
@@ -36,20 +37,26 @@ def test_every_task_is_registered_with_its_point_counts():
         TaxDPDSimEnvConfig(task="cloth")
 
 
-def test_one_step_episode_executes_the_goal_cloud():
+def test_an_episode_executes_the_goal_cloud_then_shows_it():
     env = gym.make("lerobot_taxdpd/insert_ssd-v0")
     observation, info = env.reset(seed=4)
     trial = make_trial(get_task("insert_ssd"), 4, "test")
     packed = observation["environment_state"]
     np.testing.assert_array_equal(packed, np.concatenate([trial.object_points, trial.scene_points]))
     assert env.observation_space.contains(observation)
+    start = env.unwrapped.render()
     _, reward, terminated, _, info = env.step(trial.goal_points().reshape(-1))  # flattened, as lerobot-eval sends it
-    assert (reward, terminated, info["is_success"]) == (1.0, True, True)
+    assert (reward, terminated, info["is_success"]) == (1.0, False, True)
+    placed = env.unwrapped.render()
+    assert np.abs(placed.astype(int) - start).max() > 0, "the frame after the placement shows the object moved"
+    _, reward, terminated, _, info = env.step(np.zeros(trial.object_points.size))  # its action is ignored
+    assert (reward, terminated, info["is_success"]) == (0.0, True, True)
     env.reset(seed=4)
     _, reward, _, _, info = env.step(trial.goal_points() + np.array([0.004, 0.0, 0.0], dtype=np.float32))
     assert reward == 0.0 and not info["is_success"] and "not in a socket" in info["failure"]
     frame = env.unwrapped.render()
     assert frame.shape == (240, 320, 3) and frame.dtype == np.uint8 and frame.std() > 0
+    env.reset(seed=4)
     with pytest.raises(ValueError, match="action: expected the goal cloud"):
         env.unwrapped.step(np.zeros((10, 3)))
     env.close()
@@ -61,7 +68,7 @@ def test_lerobot_factory_and_preprocessing_hand_the_policy_both_clouds():
     assert features[ACTION].type is FeatureType.ACTION and features[OBS_ENV_STATE].type is FeatureType.ENV
     vector = make_env(config, n_envs=2)["taxdpd_sim"][0]
     observation, _ = vector.reset(seed=[11, 12])
-    assert vector.call("_max_episode_steps") == (1, 1)
+    assert vector.call("_max_episode_steps") == (2, 2)
     batch = preprocess_observation(observation)
     num_object = config.features[ACTION].shape[0]
     unpacked = UnpackEnvironmentPointCloudsStep(num_object_points=num_object).observation(batch)
@@ -71,6 +78,8 @@ def test_lerobot_factory_and_preprocessing_hand_the_policy_both_clouds():
         torch.testing.assert_close(unpacked[SCENE_KEY][env_index], torch.from_numpy(trial.scene_points))
     goals = np.stack([env.unwrapped._trial.goal_points().reshape(-1) for env in vector.envs])
     goals[1] += 0.05  # 5 cm off in x, y and z: misses the peg
+    _, _, terminated, _, info = vector.step(goals)
+    assert not terminated.any() and info["is_success"].tolist() == [True, False]
     _, _, terminated, _, info = vector.step(goals)
     assert terminated.all() and info["final_info"]["is_success"].tolist() == [True, False]
     vector.close()
@@ -110,3 +119,7 @@ def test_lerobot_eval_runs_a_taxdpd_checkpoint_on_a_benchmark(tmp_path):
     )
     info = json.loads((output / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+    # The video shows the start scene, then the object where the predicted goal put it.
+    (video,) = info["overall"]["video_paths"]
+    frames = imageio.mimread(video)
+    assert len(frames) == 2 and np.abs(frames[1].astype(int) - frames[0]).max() > 0

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from lerobot_taxdpd.apps.slot_demo import prepare_output
 from lerobot_taxdpd.reports.benchmarking import write_json
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 SUMMARY = "summary.json"
 
@@ -49,6 +50,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help="train each task's predictor first (CPU recipe; about 25 min a task)",
     )
     parser.add_argument("--output", type=Path, default=Path("results/demo"))
+    add_threads_argument(parser)
     return parser.parse_args(argv)
 
 
@@ -96,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return slot_demo([a for a in argv if a != "--synthetic"])
     args = parse_args(argv)
+    configure_threads(args.threads)
     if not args.tasks:
         raise SystemExit("no shipped goal predictors in this install: pass --tasks T --from-scratch")
     prepare_output(args.output, SUMMARY)

@@ -20,6 +20,7 @@ import torch
 from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
 from lerobot_taxdpd.recipes import run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 MARKER = "metrics.json"
 
@@ -45,6 +46,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--samples", type=int, default=8, help="goals sampled per held-out scene")
     parser.add_argument("--scenes", type=int, default=12, help="held-out scenes to evaluate")
     parser.add_argument("--seed", type=int, default=1)
+    add_threads_argument(parser)
     return parser.parse_args(argv)
 
 
@@ -123,6 +125,7 @@ def figures(policy, args: argparse.Namespace) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    configure_threads(args.threads)
     from lerobot_taxdpd import TaxDPDPolicy
 
     prepare_output(args.output)

@@ -1,71 +1,137 @@
-"""Command line of the procedural benchmarks: `python -m lerobot_taxdpd.sim {generate,eval} --task T ...`
+"""Command line of the procedural benchmarks: `python -m lerobot_taxdpd.sim {generate,eval,pretrain} --task T ...`
 
-    generate  scripted demonstrations -> a LeRobot v3.0 goal-prediction dataset
-    eval      a goal predictor on held-out trials -> JSON report and PNG figures
+    generate  scripted demonstrations -> a LeRobot v3.0 goal-prediction dataset (cloth_hang: and/or the
+              gc_dp3 policy dataset)
+    eval      a goal predictor on held-out trials -> JSON report and PNG figures (cloth_hang: also the
+              gc_dp3 executor, with predicted and/or ground-truth goals)
     pretrain  generate + lerobot-train + eval, then save the checkpoint with its metrics (a shipped predictor)
 
-`--task cloth_hang` is handed, with the whole command line, to the cloth task's own command line.
+One vocabulary for every task: `--goal-policy.path` is a goal predictor (taxdpd), `--policy.path` an
+executor (gc_dp3, cloth_hang only). Options that only one kind of task takes are listed under their own
+heading of `--help`.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 from pathlib import Path
 
+from lerobot_taxdpd.cli_options import add_deprecated_alias
 from lerobot_taxdpd.sim.splits import SPLITS
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 CLOTH_TASK = "cloth_hang"
-
-
-def _requested_task(argv: list[str]) -> str | None:
-    for i, arg in enumerate(argv):
-        if arg == "--task" and i + 1 < len(argv):
-            return argv[i + 1]
-        if arg.startswith("--task="):
-            return arg.split("=", 1)[1]
-    return None
+#: Where eval writes by default, per kind of task.
+OUTPUT = {"rigid": Path("outputs/sim_eval"), CLOTH_TASK: Path("outputs/eval/cloth_hang")}
+RIGID_ONLY = {
+    "predictor": "--predictor",
+    "oracle_error_mm": "--oracle-error-mm",
+    "oracle_error_deg": "--oracle-error-deg",
+}
+CLOTH_ONLY = {
+    "dataset": "--dataset",
+    "object_cloud_size": "--object-cloud-size",
+    "scene_cloud_size": "--scene-cloud-size",
+    "workers": "--workers",
+    "ground_truth_goals": "--ground-truth-goals",
+    "goal_threshold": "--goal-threshold",
+    "ship": "--ship",
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_taxdpd.sim.cloth.datasets import DATASET_KINDS
     from lerobot_taxdpd.sim.tasks import task_names
 
     tasks = [*task_names(), CLOTH_TASK]
-    parser = argparse.ArgumentParser(prog="python -m lerobot_taxdpd.sim", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m lerobot_taxdpd.sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     verbs = parser.add_subparsers(dest="verb", required=True)
 
-    generate = verbs.add_parser("generate", help="write scripted demonstrations as a LeRobot dataset")
+    generate = verbs.add_parser("generate", help="write scripted demonstrations as LeRobot datasets")
     generate.add_argument("--task", required=True, choices=tasks)
     generate.add_argument("--episodes", type=int, required=True, help="number of demonstrations (one episode each)")
     generate.add_argument("--split", choices=SPLITS, default="train", help="geometry split (default: train)")
     generate.add_argument("--repo-id", required=True, help="dataset repo id, e.g. me/mug_easyrack")
     generate.add_argument("--root", required=True, type=Path, help="output folder; must not exist unless --overwrite")
     generate.add_argument("--seed", type=int, default=0, help="episode i uses scene seed SEED + i (default: 0)")
-    generate.add_argument("--frames-per-episode", type=int, default=2, help="observations of each demo (>= 2)")
-    generate.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root, atomically")
-
-    evaluate = verbs.add_parser("eval", help="evaluate a goal predictor on held-out trials")
-    evaluate.add_argument("--task", required=True, choices=tasks)
-    source = evaluate.add_mutually_exclusive_group(required=True)
-    source.add_argument(
-        "--policy.path",
-        dest="policy_path",
-        help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id",
+    generate.add_argument(
+        "--frames-per-episode",
+        type=int,
+        default=None,
+        help="observations of each demonstration, >= 2 (default: 2; cloth_hang: 4 point samplings)",
     )
-    source.add_argument(
-        "--predictor",
-        help="'oracle' (ground truth, checks the benchmark itself) or 'package.module:factory' returning an "
-        "object with sample_goals(object_points, scene_points, num_samples)",
+    add_deprecated_alias(generate, "--views", "--frames-per-episode", "frames_per_episode", type=int)
+    generate.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root, atomically")
+    add_threads_argument(generate)
+    cloth = generate.add_argument_group("cloth_hang only")
+    cloth.add_argument(
+        "--dataset",
+        choices=DATASET_KINDS,
+        default=None,
+        help="which dataset(s) to write (default: both, to "
+        "ROOT/goal and ROOT/policy, their repo ids suffixed _goal and _policy)",
+    )
+    cloth.add_argument(
+        "--object-cloud-size", type=int, default=None, help="cloth points stored per frame (default: 512)"
+    )
+    cloth.add_argument(
+        "--scene-cloud-size", type=int, default=None, help="hanger points stored per frame (default: 512)"
+    )
+    cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
+
+    evaluate = verbs.add_parser("eval", help="evaluate a goal predictor (cloth_hang: and an executor), held out")
+    evaluate.add_argument("--task", required=True, choices=tasks)
+    evaluate.add_argument(
+        "--goal-policy.path",
+        dest="goal_policy_path",
+        metavar="NAME_OR_PATH",
+        help="TAX-DPD goal predictor: a shipped name, a checkpoint folder or a Hub id",
     )
     evaluate.add_argument("--trials", type=int, default=100, help="number of trials (default: 100)")
     evaluate.add_argument("--num-samples", type=int, default=10, help="goals sampled per trial, K (default: 10)")
     evaluate.add_argument("--seed", type=int, default=0, help="trial i uses scene seed SEED + i (default: 0)")
     evaluate.add_argument("--split", choices=SPLITS, default="test", help="geometry split (default: test, held out)")
-    evaluate.add_argument("--output", type=Path, default=Path("outputs/sim_eval"), help="folder for the JSON and PNGs")
-    evaluate.add_argument("--figures", type=int, default=3, help="trials to draw (default: 3)")
-    evaluate.add_argument("--oracle-error-mm", type=float, default=0.0, help="oracle only: translation error to add")
-    evaluate.add_argument("--oracle-error-deg", type=float, default=0.0, help="oracle only: rotation error to add")
+    evaluate.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        help="folder for the JSON and PNGs (default: outputs/sim_eval; cloth_hang: outputs/eval/cloth_hang)",
+    )
+    evaluate.add_argument("--figures", type=int, default=3, help="trials to draw as PNGs (default: 3)")
+    add_deprecated_alias(evaluate, "--plots", "--figures", "figures", type=int)
+    evaluate.add_argument("--device", default="cpu", help="where the policies run: cpu, cuda, ... (default: cpu)")
+    add_threads_argument(evaluate)
+    rigid = evaluate.add_argument_group("rigid tasks only")
+    rigid.add_argument(
+        "--predictor",
+        help="instead of --goal-policy.path: 'oracle' (ground truth, checks the benchmark itself) or "
+        "'package.module:factory' returning an object with sample_goals(object_points, scene_points, num_samples)",
+    )
+    rigid.add_argument("--oracle-error-mm", type=float, default=None, help="oracle only: translation error to add")
+    rigid.add_argument("--oracle-error-deg", type=float, default=None, help="oracle only: rotation error to add")
+    cloth = evaluate.add_argument_group("cloth_hang only")
+    cloth.add_argument(
+        "--policy.path",
+        dest="policy_path",
+        metavar="PATH",
+        help="gc_dp3 executor checkpoint (a pretrained_model folder); with --goal-policy.path it executes the "
+        "first predicted goal",
+    )
+    cloth.add_argument(
+        "--ground-truth-goals", action="store_true", default=None, help="also execute a ground-truth goal"
+    )
+    cloth.add_argument(
+        "--goal-threshold", type=float, default=None, help="RMSE for coverage@K / precision@K (default: 0.5)"
+    )
+    cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
+    cloth.add_argument(
+        "--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang"
+    )
 
     pretrain = verbs.add_parser(
         "pretrain",
@@ -89,7 +155,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="demonstrations folder, generated if missing (default: <output>/data)",
     )
+    add_threads_argument(pretrain)
     return parser
+
+
+def _refuse_other_kinds_options(args: argparse.Namespace) -> None:
+    """Options of the other kind of task are an error, not silently ignored."""
+    cloth = args.task == CLOTH_TASK
+    for dest, flag in (RIGID_ONLY if cloth else CLOTH_ONLY).items():
+        if getattr(args, dest, None) is not None:
+            kind = "a rigid task" if cloth else "--task cloth_hang"
+            raise ValueError(f"{flag}: only applies to {kind}, not to --task {args.task}")
 
 
 def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
@@ -110,7 +186,28 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
     return 0
 
 
-def _generate(args: argparse.Namespace, argv: list[str]) -> int:
+def _generate(args: argparse.Namespace, command: str) -> int:
+    if args.task == CLOTH_TASK:
+        from lerobot_taxdpd.sim.cloth.datasets import generate
+
+        summary = generate(
+            split=args.split,
+            seed=args.seed,
+            episodes=args.episodes,
+            root=args.root,
+            repo_id=args.repo_id,
+            workers=_workers(args),
+            overwrite=args.overwrite,
+            command=command,
+            **_given(
+                kind=args.dataset,
+                frames_per_episode=args.frames_per_episode,
+                object_cloud_size=args.object_cloud_size,
+                scene_cloud_size=args.scene_cloud_size,
+            ),
+        )
+        print(json.dumps(summary, indent=2))
+        return 0
     from lerobot_taxdpd.sim.generate import generate_dataset
     from lerobot_taxdpd.sim.tasks import get_task
 
@@ -121,12 +218,63 @@ def _generate(args: argparse.Namespace, argv: list[str]) -> int:
         repo_id=args.repo_id,
         root=args.root,
         seed=args.seed,
-        frames_per_episode=args.frames_per_episode,
         overwrite=args.overwrite,
-        command="python -m lerobot_taxdpd.sim " + shlex.join(argv),
+        command=command,
+        **_given(frames_per_episode=args.frames_per_episode),
     )
     print(f"wrote {args.episodes} {args.task} demonstrations ({args.split} geometry) to {root}")
     return 0
+
+
+def _given(**options) -> dict:
+    """The options the user gave (not None): the others keep the defaults of the function they go to."""
+    return {name: value for name, value in options.items() if value is not None}
+
+
+def _workers(args: argparse.Namespace) -> int:
+    workers = 1 if args.workers is None else args.workers
+    if workers < 1:
+        raise ValueError(f"--workers: must be at least 1, got {workers}")
+    return workers
+
+
+def _evaluate_cloth(args: argparse.Namespace) -> int:
+    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_goal_predictor
+
+    output = args.output or OUTPUT[CLOTH_TASK]
+    summary = evaluate(
+        split=args.split,
+        seed=args.seed,
+        trials=args.trials,
+        output=output,
+        policy_path=args.policy_path,
+        goal_policy_path=args.goal_policy_path,
+        ground_truth_goals=bool(args.ground_truth_goals),
+        **_given(goal_threshold=args.goal_threshold),
+        num_goal_samples=args.num_samples,
+        figures=args.figures,
+        workers=_workers(args),
+        device=args.device,
+    )
+    print(json.dumps({k: v for k, v in summary.items() if k != "per_trial"}, indent=2))
+    print(f"per-trial results: {output / EVAL_FILE}")
+    if args.ship is not None:
+        print(f"shipped as {ship_goal_predictor(summary, args.ship)}")
+    return 0
+
+
+def _goal_predictor_source(args: argparse.Namespace) -> str | None:
+    """`--goal-policy.path`; on a rigid task, the old `--policy.path` spelling of it, with a warning."""
+    if args.policy_path is None:
+        return args.goal_policy_path
+    if args.goal_policy_path is not None:
+        raise ValueError("--policy.path: names a gc_dp3 executor, which only --task cloth_hang takes")
+    print(
+        "warning: --policy.path for a goal predictor is deprecated, use --goal-policy.path (--policy.path names "
+        "the gc_dp3 executor of cloth_hang)",
+        file=sys.stderr,
+    )
+    return args.policy_path
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -139,35 +287,40 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ValueError(f"--trials: must be at least 1, got {args.trials}")
+    goal_policy_path = _goal_predictor_source(args)
+    if (goal_policy_path is None) == (args.predictor is None):
+        raise ValueError("--goal-policy.path or --predictor: give exactly one (the goal predictor to evaluate)")
     task = get_task(args.task)
     seeds = range(args.seed, args.seed + args.trials)
     oracle = args.predictor == "oracle"
-    if not oracle and (args.oracle_error_mm or args.oracle_error_deg):
+    oracle_error_mm, oracle_error_deg = args.oracle_error_mm or 0.0, args.oracle_error_deg or 0.0
+    if not oracle and (oracle_error_mm or oracle_error_deg):
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
     if oracle:
         trials = [make_trial(task, seed, args.split) for seed in seeds]
-        predictor = OraclePredictor(trials, args.oracle_error_mm / 1000, args.oracle_error_deg, seed=args.seed)
-    elif args.policy_path:
+        predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
+    elif goal_policy_path:
         try:
-            predictor = load_goal_predictor(args.policy_path)
+            predictor = load_goal_predictor(goal_policy_path, device=args.device)
         except (OSError, ValueError) as error:
             raise ValueError(
-                f"--policy.path {args.policy_path}: not a loadable TAX-DPD checkpoint ({error})"
+                f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
     else:
         predictor = load_predictor(args.predictor)
     if not oracle:
         trials = (make_trial(task, seed, args.split) for seed in seeds)
+    output = args.output or OUTPUT["rigid"]
     report = evaluate(
         predictor,
         trials,
         args.num_samples,
-        figures_dir=args.output / "figures",
+        figures_dir=output / "figures",
         num_figures=args.figures,
         total=args.trials,
     )
-    report["predictor"] = args.policy_path or args.predictor
-    path = write_json(args.output / f"{task.name}_eval.json", report)
+    report["predictor"] = goal_policy_path or args.predictor
+    path = write_json(output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(
         f"{task.name}: success {s['success_rate']:.1%} (95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%}) over "
@@ -179,10 +332,6 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if _requested_task(argv) == CLOTH_TASK:
-        from lerobot_taxdpd.sim.cloth.cli import main as cloth_main
-
-        return cloth_main(argv)
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
     overrides = [
@@ -190,13 +339,17 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if len(overrides) < len(unknown):
         parser.error(f"unrecognized arguments: {' '.join(arg for arg in unknown if arg not in overrides)}")
+    configure_threads(args.threads)
+    command = "python -m lerobot_taxdpd.sim " + shlex.join(argv)
     try:
-        verbs = {
-            "generate": lambda: _generate(args, argv),
-            "eval": lambda: _evaluate(args),
-            "pretrain": lambda: _pretrain(args, overrides),
-        }
-        return verbs[args.verb]()
+        if args.verb == "pretrain":
+            return _pretrain(args, overrides)
+        _refuse_other_kinds_options(args)
+        if args.verb == "generate":
+            return _generate(args, command)
+        if args.task == CLOTH_TASK:
+            return _evaluate_cloth(args)
+        return _evaluate(args)
     except (ValueError, FileExistsError, FileNotFoundError, TypeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1

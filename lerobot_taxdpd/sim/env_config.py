@@ -33,7 +33,7 @@ for _task in TASK_POINT_COUNTS:
     _id = f"{GYM_NAMESPACE}/{_task}-v0"
     if _id not in gym.registry:
         gym.register(
-            id=_id, entry_point="lerobot_taxdpd.sim.gym_env:PlacementEnv", kwargs={"task": _task}, max_episode_steps=1
+            id=_id, entry_point="lerobot_taxdpd.sim.gym_env:PlacementEnv", kwargs={"task": _task}, max_episode_steps=2
         )
 
 

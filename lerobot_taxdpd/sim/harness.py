@@ -5,13 +5,19 @@ in the paper) after RANSAC-SVD turns it into a pose. Errors are measured against
 to the executed sample (the demonstrated goal when the task has one mode and the object no symmetry),
 so a sample that solves the scene another valid way is not penalised. Multi-modal tasks also get
 coverage@K and precision@K, counting each mode (peg, slot, support, socket) once.
+
+Every random draw of a trial comes from its scene seed: the predictor gets a `torch.Generator` seeded with
+it (when its `sample_goals` takes `generator=`; torch's global generator is seeded with it otherwise) and
+RANSAC another, so the same command gives the same numbers on every run, whatever ran before the trial.
 """
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections import Counter
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,15 +35,22 @@ from lerobot_taxdpd.maths.metrics import (
 from lerobot_taxdpd.reports.benchmarking import machine_info
 from lerobot_taxdpd.reports.plots import plot_goal_samples, plot_weight_map
 from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
-from lerobot_taxdpd.sim.trials import Trial, execute
+from lerobot_taxdpd.sim.trials import Outcome, Trial, execute
 
 
-def _sample(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
-    """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked."""
+def _takes_generator(predictor: GoalPredictor) -> bool:
+    parameters = inspect.signature(predictor.sample_goals).parameters.values()
+    return any(p.name == "generator" or p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters)
+
+
+def sample_trial_goals(predictor: GoalPredictor, trial: Trial, num_samples: int) -> np.ndarray:
+    """The predictor's K goal clouds for one trial as float64 (K, N_O, 3), checked; drawn from the trial's seed."""
     object_points = torch.from_numpy(trial.object_points)[None]
     scene_points = torch.from_numpy(trial.scene_points)[None]
-    with torch.inference_mode():
-        samples = predictor.sample_goals(object_points, scene_points, num_samples)
+    seeded = {"generator": torch.Generator().manual_seed(trial.seed)} if _takes_generator(predictor) else {}
+    with torch.inference_mode(), torch.random.fork_rng():
+        torch.manual_seed(trial.seed)  # for predictors that draw from torch's global generator
+        samples = predictor.sample_goals(object_points, scene_points, num_samples, **seeded)
     samples = np.asarray(samples.detach().cpu() if isinstance(samples, torch.Tensor) else samples, dtype=np.float64)
     expected = (1, num_samples, *trial.object_points.shape)
     if samples.shape != expected:
@@ -87,6 +100,36 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
     return record
 
 
+@dataclass(frozen=True)
+class TrialRun:
+    """One trial as the harness runs it: the K samples, what executing the first did, and the trial's record
+    of the report."""
+
+    samples: np.ndarray  # (K, N_O, 3) float64, metres
+    outcome: Outcome
+    record: dict
+    predict_seconds: float
+
+
+def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int) -> TrialRun:
+    """Sample K goals (from the trial's seed), fit a pose to the first by RANSAC-SVD, execute and score it."""
+    tick = time.perf_counter()
+    samples = sample_trial_goals(predictor, trial, num_samples)
+    predict_seconds = time.perf_counter() - tick
+    transform, _ = estimate_rigid_transform(
+        trial.object_points.astype(np.float64), samples[0], generator=torch.Generator().manual_seed(trial.seed)
+    )
+    outcome = execute(trial, transform)
+    record = {
+        "seed": trial.seed,
+        "success": outcome.success,
+        "failure": outcome.reason,
+        "reached_goal": outcome.reached_goal,
+        **score_trial(trial, samples, transform),
+    }
+    return TrialRun(samples, outcome, record, predict_seconds)
+
+
 def evaluate(
     predictor: GoalPredictor,
     trials: Iterable[Trial],
@@ -109,22 +152,11 @@ def evaluate(
     for index, trial in enumerate(tqdm(trials, total=total, desc="trials", disable=not progress)):
         task = trial.task
         tick = time.perf_counter()
-        samples = _sample(predictor, trial, num_samples)
-        predict_seconds = time.perf_counter() - tick
-        transform, _ = estimate_rigid_transform(trial.object_points.astype(np.float64), samples[0])
-        outcome = execute(trial, transform)
-        record = {
-            "seed": trial.seed,
-            "success": outcome.success,
-            "failure": outcome.reason,
-            "reached_goal": outcome.reached_goal,
-        }
-        record.update(score_trial(trial, samples, transform))
-        record["predict_seconds"] = predict_seconds
-        record["seconds"] = time.perf_counter() - tick
+        run = run_trial(predictor, trial, num_samples)
+        record = {**run.record, "predict_seconds": run.predict_seconds, "seconds": time.perf_counter() - tick}
         records.append(record)
         if figures_dir is not None and index < num_figures:
-            figures += _draw(predictor, trial, samples, outcome.success, figures_dir)
+            figures += _draw(predictor, trial, run.samples, run.outcome.success, figures_dir)
     if not records:
         raise ValueError("no trials to evaluate")
     return _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)

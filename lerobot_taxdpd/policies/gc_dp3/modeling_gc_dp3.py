@@ -11,16 +11,19 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
+from huggingface_hub import ModelCard
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
 from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
+from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
 
 
 # --------------------------------------------------------------------------------------------- encoders
@@ -248,6 +251,14 @@ class GcDp3Policy(PreTrainedPolicy):
 
     def get_optim_params(self):
         return self.model.parameters()
+
+    def _save_pretrained(self, save_directory: Path) -> None:
+        super()._save_pretrained(save_directory)
+        card = self.generate_model_card(None, self.name, self.config.license, self.config.tags)
+        card.save(str(Path(save_directory) / "README.md"))
+
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
+        return render_model_card(self.config, dataset_repo_id, license, tags)
 
     def reset(self) -> None:
         steps = self.config.n_obs_steps

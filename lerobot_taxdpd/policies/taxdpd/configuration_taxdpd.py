@@ -121,7 +121,7 @@ class TaxDPDConfig(PreTrainedConfig):
     scene_occlusion_prob: float = 0.0  # random ball cut of the scene (the authors used 0.8)
 
     # ---- pose estimation
-    ransac_threshold: float | None = None  # metres; default 5% of the object's RMS radius
+    ransac_threshold: float | None = None  # metres; default 5 percent of the object's RMS radius
     ransac_hypotheses: int = 256
 
     # ---- optimisation (paper: AdamW 1e-4, wd 1e-5, warmup 100, cosine, clip 1.0)

@@ -11,12 +11,13 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from huggingface_hub import ModelCard, ModelCardData, hf_hub_download
+from huggingface_hub import ModelCard, hf_hub_download
 from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
@@ -48,6 +49,9 @@ logger = logging.getLogger(__name__)
 
 #: DDIM's stochasticity per sampler name: deterministic DDIM, or ancestral DDPM sampling.
 SAMPLER_ETA = {"ddim": 0.0, "ddpm": 1.0}
+#: How many times larger or smaller than the training objects an input object may be before a warning: the
+#: objects of one task vary by a small factor; a unit mix-up (millimetres for metres) is a factor of 1000.
+SCALE_TOLERANCE = 10.0
 
 
 class TaxDPDModel(nn.Module):
@@ -176,7 +180,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
         goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points)
         if self.training:
             object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
-        frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points))
+        frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points, OBJECT_KEY))
         with self._autocast():
             losses = self.model.compute_loss(
                 frame.to_model(object_points), frame.to_model(scene_points), frame.to_model(goal_points)
@@ -292,8 +296,9 @@ class TaxDPDPolicy(PreTrainedPolicy):
             return points
         return gather_points(points, farthest_point_sample(points, num_points))
 
-    def _point_scale(self, object_points: Tensor) -> float:
+    def _point_scale(self, object_points: Tensor, name: str = "object_points") -> float:
         if self.config.point_scale is not None:
+            self._check_units(object_points, name)
             return self.config.point_scale
         if not self._warned_scale:
             logger.warning(
@@ -302,6 +307,27 @@ class TaxDPDPolicy(PreTrainedPolicy):
             )
             self._warned_scale = True
         return self.config.object_scale / float(object_radius(object_points.double()).median().clamp_min(1e-9))
+
+    def _check_units(self, object_points: Tensor, name: str) -> None:
+        """Warn when the objects are far larger or smaller than the ones this checkpoint was trained on: the
+        model sees every input multiplied by `point_scale`, so wrong units give confident garbage."""
+        radius = float(object_radius(object_points.double()).median())
+        trained = self.config.object_scale / self.config.point_scale  # median training object radius, metres
+        ratio = radius / trained
+        if 1 / SCALE_TOLERANCE <= ratio <= SCALE_TOLERANCE:
+            return
+        hint = (
+            "; these look like millimetres: divide the clouds by 1000"
+            if 300 <= ratio <= 3000
+            else "; check the units of both clouds"
+        )
+        warnings.warn(
+            f"{name}: the object's radius is {radius:.4g}, {ratio:.3g}x the {trained:.3g} m of the objects this "
+            f"model was trained on (config.point_scale = {self.config.point_scale:.4g} model units per metre); "
+            f"inputs must be in metres{hint}",
+            UserWarning,
+            stacklevel=2,
+        )
 
     def _checked_inputs(
         self, object_points, scene_points, object_name: str = "object_points", scene_name: str = "scene_points"
@@ -371,15 +397,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
         return policy
 
     def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
-        card_data = ModelCardData(
-            license=license or "apache-2.0",
-            library_name="lerobot",
-            pipeline_tag="robotics",
-            tags=sorted(set(tags or []) | {"robotics", "lerobot", model_type, "point-cloud", "placement"}),
-            model_name=model_type,
-            datasets=dataset_repo_id,
-        )
-        return ModelCard(render_model_card(card_data.to_yaml(), self.config, self.metrics, dataset_repo_id))
+        return render_model_card(self.config, self.metrics, dataset_repo_id, license, tags)
 
 
 def _load_metrics(pretrained_name_or_path, kwargs: dict) -> dict:

@@ -1,5 +1,6 @@
-"""`python -m lerobot_taxdpd.sim.cloth {generate,eval} --task cloth_hang ...`"""
+"""`python -m lerobot_taxdpd.sim.cloth {generate,eval} --task cloth_hang ...`: the same command line as
+`python -m lerobot_taxdpd.sim` (see `lerobot_taxdpd.sim.cli`)."""
 
-from lerobot_taxdpd.sim.cloth.cli import main
+from lerobot_taxdpd.sim.cli import main
 
 raise SystemExit(main())

@@ -2,7 +2,7 @@
 
 - goal prediction (`taxdpd`): one demo = one episode; each frame is an independent sampling of the
   cloth surface (start cloud, and the same surface points on the settled cloth as the goal) and of the
-  hangers, so an episode has `views` >= 2 frames.
+  hangers, so an episode has `frames_per_episode` >= 2 frames.
 - policy (`gc_dp3`): one rollout = one episode, one frame per control step: cloth, hangers, the
   rollout's own goal cloud, gripper state, executed action, `next.done` and `next.success`.
 
@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 from lerobot_taxdpd.data.schema import (
@@ -59,7 +60,7 @@ class Demo:
 class DemoRequest:
     split: str
     seed: int
-    views: int
+    frames_per_episode: int
     object_cloud_size: int
     scene_cloud_size: int
     want_goal: bool
@@ -99,10 +100,10 @@ def simulate_demo(request: DemoRequest) -> Demo:
 
 
 def _goal_frames(env: ClothHangEnv, start: np.ndarray, final: np.ndarray, request: DemoRequest) -> list[dict]:
-    """`views` independent samplings of (start cloud, hangers, goal cloud) with rows kept in correspondence."""
+    """`frames_per_episode` independent samplings of (start cloud, hangers, goal cloud), rows in correspondence."""
     rng = np.random.default_rng([SPLITS.index(request.split), request.seed, 3])
     frames = []
-    for view in range(request.views):
+    for view in range(request.frames_per_episode):
         samples = sample_surface(env.mesh, request.object_cloud_size, rng)
         frames.append(
             placement_frame(
@@ -133,20 +134,23 @@ def generate(
     root: Path,
     repo_id: str,
     kind: str = "both",
-    views: int = 4,
+    frames_per_episode: int = 4,
     object_cloud_size: int = 512,
     scene_cloud_size: int = 512,
     workers: int = 1,
     overwrite: bool = False,
     command: str | None = None,
+    progress: bool = True,
 ) -> dict[str, object]:
     """Write the goal-prediction and/or policy dataset; returns a summary (counts, paths, timings)."""
     if kind not in DATASET_KINDS:
         raise ValueError(f"dataset: must be one of {DATASET_KINDS}, got {kind!r}")
     if episodes < 1:
         raise ValueError(f"episodes: must be at least 1, got {episodes}")
-    if views < 2:
-        raise ValueError(f"views: a goal-prediction episode needs at least 2 frames, got {views}")
+    if frames_per_episode < 2:
+        raise ValueError(
+            f"--frames-per-episode: a goal-prediction episode needs at least 2 frames, got {frames_per_episode}"
+        )
     want_goal, want_policy = kind in ("goal", "both"), kind in ("policy", "both")
     paths = _dataset_paths(Path(root), repo_id, kind)
     card = DatasetCardInfo(
@@ -158,7 +162,7 @@ def generate(
         details={"split": split, "scene seeds": f"{seed}..{seed + episodes - 1}"},
     )
     requests = [
-        DemoRequest(split, s, views, object_cloud_size, scene_cloud_size, want_goal, want_policy)
+        DemoRequest(split, s, frames_per_episode, object_cloud_size, scene_cloud_size, want_goal, want_policy)
         for s in range(seed, seed + episodes)
     ]
     seconds, successes = [], 0
@@ -178,7 +182,8 @@ def generate(
             )
         for writer in writers.values():
             stack.enter_context(writer)
-        for demo in simulate_demos(requests, workers):
+        demos = simulate_demos(requests, workers)
+        for demo in tqdm(demos, total=len(requests), desc="cloth_hang demos", disable=not progress):
             seconds.append(demo.seconds)
             if not demo.success:
                 source = f"{split} seed {demo.seed} (hole {demo.hole}, hanger {demo.hanger})"

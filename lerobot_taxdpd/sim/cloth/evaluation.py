@@ -22,14 +22,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
 from lerobot_taxdpd.maths.metrics import coverage_precision, success_summary
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.reports.plots import plot_goal_samples
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
-from lerobot_taxdpd.sim.cloth.plot import plot_trial
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
+
+#: The report `evaluate` writes into its output folder, beside `figures/`.
+EVAL_FILE = "cloth_hang_eval.json"
 
 
 @dataclass(frozen=True)
@@ -41,9 +45,9 @@ class TrialRequest:
     ground_truth_goals: bool
     num_goal_samples: int
     goal_threshold: float
-    plot_dir: str | None
+    figure_dir: str | None
     device: str
-    torch_threads: int | None
+    torch_threads: int
 
 
 def load_gc_dp3(path: str, device: str):
@@ -83,8 +87,7 @@ def policy_controller(policy, preprocessor, postprocessor, goal: np.ndarray) -> 
 
 def run_trial(request: TrialRequest) -> dict:
     """One held-out scene: valid goals, goal-predictor metrics and policy rollouts."""
-    if request.torch_threads:
-        torch.set_num_threads(request.torch_threads)
+    torch.set_num_threads(request.torch_threads)
     started = time.perf_counter()
     env = ClothHangEnv(request.split)
     try:
@@ -111,17 +114,33 @@ def run_trial(request: TrialRequest) -> dict:
         predicted = None
         if request.goal_policy_path:
             predicted = sample_goals(
-                request.goal_policy_path, start_cloud, hanger_cloud, request.num_goal_samples, request.seed
+                request.goal_policy_path,
+                start_cloud,
+                hanger_cloud,
+                request.num_goal_samples,
+                request.seed,
+                request.device,
             )
             result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
             if executor is not None:
                 torch.manual_seed(request.seed)
                 result["predicted_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, predicted[0])))
-        if request.plot_dir:
-            path = Path(request.plot_dir) / f"{request.split}_{request.seed:04d}.png"
-            shown = predicted[0] if predicted is not None else None
+        if request.figure_dir:
+            path = Path(request.figure_dir) / f"{request.split}_{request.seed:04d}.png"
+            samples = predicted if predicted is not None else np.zeros((0, *start_cloud.shape))
             title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goal{'s' * (len(goals) > 1)}"
-            result["plot"] = str(plot_trial(path, hanger_cloud, start_cloud, goals, shown, title))
+            figure = plot_goal_samples(
+                path,
+                hanger_cloud,
+                start_cloud,
+                samples,
+                valid_goals=goals,
+                first_sample_label="executed by gc_dp3" if executor is not None else "",
+                scene_label="hangers",
+                object_label="cloth (start)",
+                title=f"{title}, {len(samples)} predicted",
+            )
+            result["figure"] = str(figure)
         result["seconds"] = time.perf_counter() - started
         return result
     finally:
@@ -137,18 +156,20 @@ def _outcome(episode: Episode) -> dict:
 
 
 @functools.lru_cache(maxsize=2)
-def _goal_predictor(path: str):
+def _goal_predictor(path: str, device: str):
     """The goal predictor, loaded once per worker process (it keeps no state between calls)."""
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
-    return load_goal_predictor(path)
+    return load_goal_predictor(path, device=device)
 
 
-def sample_goals(path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
+def sample_goals(
+    path: str, cloth: np.ndarray, hangers: np.ndarray, num_samples: int, seed: int, device: str = "cpu"
+) -> np.ndarray:
     """K goal clouds (K, N, 3) from a `taxdpd` goal predictor (shipped name, folder or Hub id) for one scene,
     drawn from their own generator so a trial's goals do not depend on what ran before it in the worker."""
     with torch.inference_mode():
-        samples = _goal_predictor(path).sample_goals(
+        samples = _goal_predictor(path, device).sample_goals(
             torch.from_numpy(cloth).float()[None], torch.from_numpy(hangers).float()[None], num_samples,
             generator=torch.Generator().manual_seed(seed),
         )
@@ -198,11 +219,15 @@ def evaluate(
     ground_truth_goals: bool = False,
     num_goal_samples: int = 10,
     goal_threshold: float = 0.5,
-    plots: int = 5,
+    figures: int = 3,
     workers: int = 1,
     device: str = "cpu",
+    progress: bool = True,
 ) -> dict:
-    """Run `trials` scenes (seeds seed..seed+trials-1), write `<output>/eval_cloth_hang.json`, return it."""
+    """Run `trials` scenes (seeds seed..seed+trials-1), write `<output>/cloth_hang_eval.json`, return it.
+
+    Each trial runs with torch's current thread count (in every worker process, when `workers` > 1).
+    """
     if trials < 1:
         raise ValueError(f"trials: must be at least 1, got {trials}")
     if not (goal_policy_path or (policy_path and ground_truth_goals)):
@@ -231,7 +256,7 @@ def evaluate(
         "num_goal_samples": num_goal_samples,
         "goal_threshold_m": goal_threshold,
         "device": device,
-        "torch_threads_per_trial": 1 if workers > 1 else torch.get_num_threads(),
+        "torch_threads_per_trial": torch.get_num_threads(),
     }
     requests = [
         TrialRequest(
@@ -242,14 +267,15 @@ def evaluate(
             ground_truth_goals=ground_truth_goals,
             num_goal_samples=num_goal_samples,
             goal_threshold=goal_threshold,
-            plot_dir=str(output / "plots") if i < plots else None,
+            figure_dir=str(output / "figures") if i < figures else None,
             device=device,
-            torch_threads=1 if workers > 1 else None,
+            torch_threads=torch.get_num_threads(),
         )
         for i, s in enumerate(range(seed, seed + trials))
     ]
-    summary = summarise(list(run_trials(requests, workers)), config, workers)
-    write_json(output / "eval_cloth_hang.json", summary)
+    results = tqdm(run_trials(requests, workers), total=len(requests), desc="cloth_hang trials", disable=not progress)
+    summary = summarise(list(results), config, workers)
+    write_json(output / EVAL_FILE, summary)
     return summary
 
 
