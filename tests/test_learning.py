@@ -85,7 +85,8 @@ def train_and_check(cli, tmp_path, budget: str) -> None:
     scene = torch.from_numpy(np.stack([s.scene_points for s in probe]))
     turns = goal_turn_response(policy, obj, scene, angle_deg=TURN_DEG, num_samples=2)
     print(
-        f"\n[{budget}, {steps} steps] learnt: {learnt}\ngoal turn (ideal scene +{TURN_DEG:.0f}, object 0, tilt 0): {turns}"
+        f"\n[{budget}, {steps} steps] learnt: {learnt}"
+        f"\ngoal turn (ideal scene +{TURN_DEG:.0f}, object 0, tilt 0): {turns}"
         f"\nbaselines: copy the start orientation {copying:.1f} deg, any fixed orientation 90 deg; "
         f"bound {limits['max_rotation_deg']} deg"
     )
