@@ -38,6 +38,7 @@ def goal_turn_response(
     scene_points: Tensor,
     *,
     angle_deg: float = 20.0,
+    tilt_deg: float = 10.0,
     num_samples: int = 4,
     seed: int = 0,
     symmetry_period_deg: float | None = None,
@@ -49,15 +50,14 @@ def goal_turn_response(
       (correct: `angle_deg`; copying the start pose: 0);
     - object_yaw: goal yaw change when the object alone turns by `angle_deg` about its own vertical
       (correct: 0; copying: `angle_deg`);
-    - object_tilt: goal rotation angle when the object alone tilts by `angle_deg` about a horizontal axis
-      through its centroid, as in a grasp that holds it tilted (correct: 0; copying: `angle_deg`).
+    - object_tilt: goal rotation angle when the object alone tilts by `tilt_deg` about a horizontal axis
+      through its centroid, as a grasp holds a plug tilted (correct: 0; copying: `tilt_deg`).
     `symmetry_period_deg` folds yaw for objects that look the same turned by that angle (180 for a box).
     """
     object_points = torch.as_tensor(object_points, dtype=torch.float32)
     scene_points = torch.as_tensor(scene_points, dtype=torch.float32)
-    angle = torch.tensor(math.radians(angle_deg), dtype=torch.float32)
-    turn = rotation_about_z(angle)
-    tilt = axis_angle_to_matrix(torch.tensor([1.0, 0.0, 0.0]), angle)
+    turn = rotation_about_z(torch.tensor(math.radians(angle_deg)))
+    tilt = axis_angle_to_matrix(torch.tensor([1.0, 0.0, 0.0]), torch.tensor(math.radians(tilt_deg)))
     object_pivot = object_points.mean(1, keepdim=True)
     cases = {
         "scene_yaw": (object_points, _turned(scene_points, turn, scene_points.mean(1, keepdim=True))),
