@@ -7,8 +7,8 @@ from lerobot_taxdpd import TaxDPDConfig
 from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
 
 
-def _config(prediction_type: str = "epsilon") -> TaxDPDConfig:
-    return TaxDPDConfig.for_point_clouds(32, 64, device="cpu", prediction_type=prediction_type)
+def _config(prediction_type: str = "sample") -> TaxDPDConfig:
+    return TaxDPDConfig.for_point_clouds(32, 64, device="cpu", prediction_type=prediction_type, rotation_noise="paper")
 
 
 def test_schedule_ends_in_noise_and_sampling_starts_there():

@@ -171,13 +171,25 @@ def matrix_to_rotation_6d(rotation: Tensor) -> Tensor:
 
 
 def rotation_6d_to_matrix(d6: Tensor) -> Tensor:
-    """Gram-Schmidt of two 3-vectors into a rotation matrix: (..., 6) -> (..., 3, 3)."""
+    """Gram-Schmidt of two 3-vectors into a rotation matrix: (..., 6) -> (..., 3, 3).
+
+    Degenerate inputs (a vanishing first vector, or a second one parallel to it) fall back to the nearest
+    axes of the identity, so the answer is always a rotation (an untrained clean-sample predictor says 0).
+    """
     a1, a2 = d6[..., :3], d6[..., 3:]
-    b1 = a1 / a1.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    eye = torch.eye(3, dtype=d6.dtype, device=d6.device)
+    b1 = _unit_or(a1, eye[0])
     a2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
-    b2 = a2 / a2.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    fallback = torch.where((b1[..., :1].abs() < 0.9), eye[0], eye[1])  # an axis not parallel to b1
+    fallback = fallback - (b1 * fallback).sum(-1, keepdim=True) * b1
+    b2 = _unit_or(torch.where(a2.norm(dim=-1, keepdim=True) > 1e-6, a2, fallback), eye[1])
     b3 = torch.cross(b1, b2, dim=-1)
     return torch.stack([b1, b2, b3], dim=-1)
+
+
+def _unit_or(v: Tensor, default: Tensor) -> Tensor:
+    norm = v.norm(dim=-1, keepdim=True)
+    return torch.where(norm > 1e-6, v / norm.clamp_min(1e-12), default.expand_as(v))
 
 
 def quaternion_xyzw_to_matrix(quaternion: ArrayLike):

@@ -133,6 +133,10 @@ class SE3Pose:
     def sample_noise(self, clean: State, rotation_std: float, generator=None) -> State:
         return {k: randn_like(v, generator) for k, v in clean.items()}
 
+    def turn_shape(self, clean: State, std: Tensor, generator=None) -> State:
+        """No rotation noise here: the 6-D rotation is diffused as it is (the paper's SE(3) ablation)."""
+        return clean
+
     def initial_state(self, object_centred: Tensor, generator=None) -> State:
         frame = randn_like(object_centred[:, :1], generator)
         rotation = randn_like(object_centred.new_empty(object_centred.shape[0], 1, 6), generator)
