@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, fit_rigid_transform, rotation_about_z, rotation_angle
+from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, fit_rigid_transform, rotation_about_z
 
 #: Names of the figures `goal_turn_response` reports, with the answer of a correct predictor.
 IDEAL = {"scene_yaw": "the angle", "object_yaw": 0.0, "object_tilt": 0.0}
@@ -50,7 +50,7 @@ def goal_turn_response(
       (correct: `angle_deg`; copying the start pose: 0);
     - object_yaw: goal yaw change when the object alone turns by `angle_deg` about its own vertical
       (correct: 0; copying: `angle_deg`);
-    - object_tilt: goal rotation angle when the object alone tilts by `tilt_deg` about a horizontal axis
+    - object_tilt: goal turn about the horizontal x axis when the object alone tilts by `tilt_deg` about it,
       through its centroid, as a grasp holds a plug tilted (correct: 0; copying: `tilt_deg`).
     `symmetry_period_deg` folds yaw for objects that look the same turned by that angle (180 for a box).
     """
@@ -74,8 +74,8 @@ def goal_turn_response(
     response = {}
     for name, (obj, scene) in cases.items():
         motion = fit_rigid_transform(reference, sample(obj, scene))[..., :3, :3]
-        if name == "object_tilt":
-            values = np.degrees(rotation_angle(torch.from_numpy(motion)).numpy())
+        if name == "object_tilt":  # signed turn about the tilt's axis (x), so sampling noise averages out
+            values = np.degrees(np.arctan2(motion[..., 2, 1], motion[..., 2, 2]))
         else:
             values = _fold(np.degrees(np.arctan2(motion[..., 1, 0], motion[..., 0, 0])), symmetry_period_deg)
         response[name] = float(np.median(values))
