@@ -138,7 +138,7 @@ def train_variant(name: str, overrides: dict, seed: int, data: dict, args) -> li
                 "seed": seed,
                 "step": step,
                 "cpu_minutes": cpu / 60,
-                "loss": float(loss),
+                "loss": loss.item(),
             } | evaluate(policy, args)
             rows.append(row)
             print(json.dumps(row), flush=True)

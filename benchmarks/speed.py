@@ -9,7 +9,7 @@ config are printed beside the figures and written to JSON.
 
     python benchmarks/speed.py                                  # results/speed.json
     python benchmarks/speed.py --models cpu --repeats 7 --threads 2
-    python benchmarks/speed.py --models cpu --set scene_tokens=points use_amp=true   # a variant
+    python benchmarks/speed.py --models cpu --set max_neighbors=16 use_amp=true   # a variant
 """
 
 from __future__ import annotations

@@ -7,7 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import draccus
+
 from conftest import TINY_TAXDPD
+from lerobot_taxdpd import TaxDPDConfig
+from lerobot_taxdpd.sim.pretrain import training_flags
+from lerobot_taxdpd.sim.tasks import get_task
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -83,3 +88,14 @@ def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
         "-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false"
     )
     assert result.returncode == 2 and "unrecognized arguments: --policy.use_gmm=false" in result.stderr
+
+
+def test_a_task_trains_with_its_own_flags_and_the_users_win():
+    """Insertion keeps the plug's yaw augmentation narrow (one grasp yaw in every scene); a user's flag overrides it."""
+    flags = training_flags(get_task("insert_waterproof"), 500, ["--policy.start_yaw_range=5"])
+    assert flags[0] == "--steps=500"
+    config = draccus.parse(
+        config_class=TaxDPDConfig, args=[flag.replace("--policy.", "--") for flag in flags[1:]]
+    )  # the same parser lerobot-train uses, which keeps the last of repeated flags
+    assert (config.start_yaw_range, config.start_tilt_range) == (5.0, 15.0)
+    assert training_flags(get_task("mug_easyrack"), None, []) == []  # the recipe's full-yaw default stands

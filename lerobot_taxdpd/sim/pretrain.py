@@ -50,6 +50,11 @@ def save_shipped(policy, checkpoint: Path, destination: Path) -> None:
         (destination / processor_file.name).write_bytes(processor_file.read_bytes())
 
 
+def training_flags(task, steps: int | None, overrides: Sequence[str]) -> list[str]:
+    """lerobot-train flags on top of the recipe: the step count, the task's own flags, then the user's (last wins)."""
+    return [*([f"--steps={steps}"] if steps else []), *task.training_flags, *overrides]
+
+
 def pretrain(
     task_name: str,
     output: Path,
@@ -65,9 +70,10 @@ def pretrain(
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
-    `recipe` is a shipped recipe name or a config file; `overrides` are extra lerobot-train flags
-    (`--policy.<field>=<value>`, `--seed=<n>`). `dataset` (default `<output>/data`) lets several runs, e.g.
-    the ablations of one task, share one set of demonstrations; it is generated only if it does not exist yet.
+    `recipe` is a shipped recipe name or a config file; the task's own `training_flags` follow it, then
+    `overrides`, extra lerobot-train flags (`--policy.<field>=<value>`, `--seed=<n>`) that win over both.
+    `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
+    demonstrations; it is generated only if it does not exist yet.
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
@@ -76,13 +82,16 @@ def pretrain(
     output = Path(output)
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
+    info = dataset / "meta" / "info.json"
+    if info.is_file():  # an existing dataset: report what it holds, not what a new one would
+        episodes = json.loads(info.read_text())["total_episodes"]
     generate_command = f"python -m lerobot_taxdpd.sim generate --task {task.name} --episodes {episodes} --split train"
-    if not (dataset / "meta" / "info.json").is_file():
+    if not info.is_file():
         print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
         generate_dataset(
             task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command
         )
-    flags = [*([f"--steps={steps}"] if steps else []), *overrides]
+    flags = training_flags(task, steps, overrides)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
     recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with

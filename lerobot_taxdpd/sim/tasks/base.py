@@ -55,6 +55,9 @@ class PlacementTask(ABC):
     # A turn about the vertical that maps the object's valid placements onto each other (a mug hung facing
     # either way, a box turned around): the equivariance probe folds yaw by it. None: no such turn.
     symmetry_period_deg: float | None = None
+    # lerobot-train flags this task's predictors train with on top of the recipe (a user's flags come after
+    # them and win): what the task's start poses make sensible, e.g. how far to turn the object at random.
+    training_flags: tuple[str, ...] = ()
     holds_object: bool = False  # insertion: the gripper keeps the plug; rigid tasks release and settle
     approach_distance: float = 0.15
     coarse_step: float = 0.005
