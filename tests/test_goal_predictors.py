@@ -123,6 +123,10 @@ def test_every_shipped_card_names_its_task_reports_its_metrics_for_the_hub_and_r
     if "translation_error_mm" in metrics:
         assert results["translation_error_mm"] == pytest.approx(metrics["translation_error_mm"]["median"], abs=1e-4)
     assert {result.dataset_split for result in card.data.eval_results} == {"test"}
+    if "equivariance_deg" in metrics:  # whether orientation is read off the scene, beside the trivial baselines
+        turns = metrics["equivariance_deg"]
+        assert f"turns the predicted goal by {turns['scene_yaw']:.1f} deg" in card.text
+        assert "Trivial baselines at the true position" in card.text
     example = card.text.split("```python\n", 1)[1].split("```", 1)[0]
     assert f'load_goal_predictor("{name}")' in example
     namespace: dict = {}

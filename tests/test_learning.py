@@ -35,7 +35,7 @@ RECIPE = [
 # nearer of the two slots) and any fixed orientation 90 deg: both are printed beside the result.
 BUDGETS = {
     "ci": dict(steps=2000, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6, max_turn_error_deg=5.0),
-    "slow": dict(steps=5000, max_rotation_deg=8.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0),
+    "slow": dict(steps=5000, max_rotation_deg=10.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0),
 }
 
 

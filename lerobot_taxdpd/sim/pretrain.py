@@ -151,11 +151,13 @@ def orientation_checks(policy, task, trials: list) -> dict:
     from lerobot_taxdpd.maths.equivariance import goal_turn_response
     from lerobot_taxdpd.sim.predictors import OraclePredictor
 
-    probe = trials[:8]
+    probe, angle, tilt = trials[:8], 20.0, 10.0
     turns = goal_turn_response(
         policy,
         np.stack([t.object_points for t in probe]),
         np.stack([t.scene_points for t in probe]),
+        angle_deg=angle,
+        tilt_deg=tilt,
         num_samples=4,
         symmetry_period_deg=task.symmetry_period_deg,
     )
@@ -168,10 +170,11 @@ def orientation_checks(policy, task, trials: list) -> dict:
         }
     return {
         "equivariance_deg": {
-            "angle": 20.0,
+            "angle": angle,
+            "tilt_angle": tilt,
             "trials": len(probe),
             **turns,
-            "ideal": {"scene_yaw": 20.0, "object_yaw": 0.0, "object_tilt": 0.0},
+            "ideal": {"scene_yaw": angle, "object_yaw": 0.0, "object_tilt": 0.0},
         },
         "baselines_true_position": baselines,
     }

@@ -35,6 +35,7 @@ _SHAPE = (
     "object_scale",
 )
 _SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps")
+_TRAINING = ("prediction_type", "rotation_noise", "start_yaw_range", "start_tilt_range")
 #: metrics.json entry -> (model-index metric type, what the number is); medians of the per-trial values.
 _MEDIANS = {
     "translation_error_mm": ("translation_error_mm", "median translation error (mm)"),
@@ -138,6 +139,29 @@ def _example(config, metrics: dict) -> list[str]:
     return [*lines, "```"]
 
 
+def _orientation(metrics: dict) -> list[str]:
+    """Whether the goal's orientation is read off the scene or copied from the start (docs/taxdpd.md)."""
+    lines = []
+    turns = metrics.get("equivariance_deg")
+    if turns:
+        lines.append(
+            f"- Orientation: turning the scene by {turns['angle']:.0f} deg turns the predicted goal by "
+            f"{turns['scene_yaw']:.1f} deg (ideal {turns['angle']:.0f}); turning the object alone by "
+            f"{turns['angle']:.0f} deg turns it by {turns['object_yaw']:.1f} deg, tilting it alone by "
+            f"{turns['tilt_angle']:.0f} deg by {turns['object_tilt']:.1f} deg (ideal 0; a model that copies the "
+            f"start orientation: the same angles), median over {turns['trials']} held-out scenes."
+        )
+    baselines = metrics.get("baselines_true_position")
+    if baselines:
+        copy, mean = baselines["copy_start_orientation"], baselines["mean_goal_orientation"]
+        lines.append(
+            f"- Trivial baselines at the true position, same trials: copying the start orientation "
+            f"{copy['success_rate']:.0%} ({copy['rotation_error_deg_median']:.1f} deg), the mean goal "
+            f"orientation {mean['success_rate']:.0%} ({mean['rotation_error_deg_median']:.1f} deg)."
+        )
+    return lines
+
+
 def _limitations(config, metrics: dict) -> list[str]:
     lines = ["## Limitations", ""]
     radius = config.object_scale / config.point_scale if config.point_scale else None
@@ -166,6 +190,7 @@ def _limitations(config, metrics: dict) -> list[str]:
         ]
         if quality:
             lines.append(f"- Multi-modal quality: {', '.join(quality)}.")
+    lines += _orientation(metrics)
     if metrics.get("training_steps"):
         lines.append(
             f"- A CPU budget: {metrics['training_steps']} steps at batch {metrics.get('batch_size')}, far from "
@@ -227,7 +252,7 @@ def render_model_card(config, metrics: dict, dataset_repo_id: str | None, licens
         "",
         "## Configuration",
         "",
-        *config_table(config, _SWITCHES + _SHAPE + _SAMPLING),
+        *config_table(config, _SWITCHES + _SHAPE + _SAMPLING + _TRAINING),
     ]
     if metrics.get("training_command"):
         body += ["", "## Training and evaluation", ""]
