@@ -30,6 +30,7 @@ from lerobot_taxdpd.sim.trials import make_trial
 #: The recipe of the shipped goal predictors and of `taxdpd-demo --from-scratch`.
 CPU_RECIPE = "taxdpd_cpu"
 TRAIN_COMMAND_FILE = "train_command.txt"
+TRAIN_SECONDS_FILE = "train_seconds.txt"  # kept beside it, so a rerun that ships the same checkpoint reports it
 
 
 def _relative(path: Path) -> Path:
@@ -95,18 +96,20 @@ def pretrain(
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
     recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with
-    train_seconds = None
+    timing = output / TRAIN_SECONDS_FILE
     if (checkpoint / "model.safetensors").is_file():
         if recorded.is_file() and recorded.read_text() != shlex.join(command):
             raise ValueError(
                 f"--output {output}: holds a checkpoint trained by another command ({recorded.read_text()}); "
                 "choose another --output or delete that folder"
             )
+        train_seconds = float(timing.read_text()) if timing.is_file() else None
     else:
         print(f"[2/4] {shlex.join(command)}", flush=True)
         output.mkdir(parents=True, exist_ok=True)
         recorded.write_text(shlex.join(command))
         train_seconds = run(command)
+        timing.write_text(f"{train_seconds}\n")
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
     if destination is not None:  # evaluate exactly what ships (half-precision weights)
