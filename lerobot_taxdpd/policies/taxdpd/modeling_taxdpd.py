@@ -349,7 +349,8 @@ class TaxDPDPolicy(PreTrainedPolicy):
         object_points, scene_points = checked
         if object_points.shape[0] != scene_points.shape[0]:
             raise PointCloudError(
-                f"{object_name} and {scene_name}: batch sizes {object_points.shape[0]} and {scene_points.shape[0]} differ"
+                f"{object_name} and {scene_name}: batch sizes {object_points.shape[0]} and "
+                f"{scene_points.shape[0]} differ"
             )
         device = next(self.parameters()).device
         return object_points.to(device, torch.float32), scene_points.to(device, torch.float32)
