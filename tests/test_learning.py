@@ -28,20 +28,15 @@ RECIPE = [
     "--policy.max_neighbors=32",
     "--policy.optimizer_lr=2e-3",
     "--policy.scheduler_warmup_steps=20",
+    "--policy.start_tilt_range=15",  # grasp-sized tilts; the clean-sample target and full-yaw starts are defaults
     "--batch_size=16",
 ]
 # Bounds, per budget. Copying the start orientation is ~40 deg off (median over held-out scenes, against the
-# nearer of the two slots) and any fixed orientation 90 deg: both are printed beside the result. The CI run
-# also tilts the box at random by up to 15 deg, as a grasp would, and must learn to ignore that; undoing tilts
-# costs it about 6 deg of accuracy here, where no start is tilted (docs/taxdpd.md, "Learning orientation"), so
-# the precise run learns yaw alone and is held to 5 deg.
+# nearer of the two slots) and any fixed orientation 90 deg: both are printed beside the result. Measured on
+# this project's 2-core machine: 10.2 deg after the CI run's 2000 steps, 4.1 deg after the slow run's 5000.
 BUDGETS = {
-    "ci": dict(
-        steps=2000, tilt=15, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6, max_turn_error_deg=5.0
-    ),
-    "slow": dict(
-        steps=4000, tilt=0, max_rotation_deg=5.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0
-    ),
+    "ci": dict(steps=2000, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6, max_turn_error_deg=5.0),
+    "slow": dict(steps=5000, max_rotation_deg=5.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0),
 }
 
 
@@ -68,7 +63,6 @@ def train_and_check(cli, tmp_path, budget: str) -> None:
         "--policy.push_to_hub=false",
         "--policy.device=cpu",
         *RECIPE,
-        f"--policy.start_tilt_range={limits['tilt']}",  # the clean-sample target and full-yaw starts are defaults
         f"--steps={steps}",
         f"--save_freq={steps}",
         f"--log_freq={steps // 5}",
@@ -104,8 +98,7 @@ def train_and_check(cli, tmp_path, budget: str) -> None:
     tolerance = limits["max_turn_error_deg"]
     assert abs(turns["scene_yaw"] - TURN_DEG) < tolerance, "the goal must turn with the scene"
     assert abs(turns["object_yaw"]) < tolerance, "turning the box alone must not turn its goal"
-    if limits["tilt"]:
-        assert abs(turns["object_tilt"]) < tolerance, "tilting the box alone must not tilt its goal"
+    assert abs(turns["object_tilt"]) < tolerance, "tilting the box alone must not tilt its goal"
 
 
 def test_orientation_is_learnt_through_lerobot_train(cli, tmp_path):
