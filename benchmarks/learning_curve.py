@@ -26,10 +26,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_taxdpd.apps.synthetic import evaluate_slot_predictor, make_slot_scene, write_slot_dataset
+from lerobot_taxdpd.apps.synthetic import (
+    copy_start_rotation_deg,
+    evaluate_slot_predictor,
+    make_slot_scene,
+    write_slot_dataset,
+)
 from lerobot_taxdpd.goal_predictors import load_goal_predictor
 from lerobot_taxdpd.maths.equivariance import goal_turn_response
-from lerobot_taxdpd.maths.metrics import rotation_error_deg
 from lerobot_taxdpd.recipes import recipe_path, run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
@@ -88,15 +92,8 @@ class HeldOut:
 
     def baselines(self) -> dict:
         if self.args.task == "slots":
-            copies = [
-                min(
-                    float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g))
-                    for g in s.valid_goals
-                )
-                for s in self.scenes
-            ]
             return {
-                "copy_start": {"rotation_error_deg": float(np.median(copies))},
+                "copy_start": {"rotation_error_deg": copy_start_rotation_deg(self.scenes)},
                 "mean_pose": {
                     "rotation_error_deg": 90.0,
                     "note": "uniform goal yaw: any fixed orientation is 90 deg off at the median",

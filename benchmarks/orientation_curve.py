@@ -24,6 +24,7 @@ import torch
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.apps.synthetic import (
+    copy_start_rotation_deg,
     evaluate_slot_predictor,
     make_slot_scene,
     render_slot_scene,
@@ -32,7 +33,6 @@ from lerobot_taxdpd.apps.synthetic import (
 from lerobot_taxdpd.data.scaling import object_radius
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.maths.equivariance import goal_turn_response
-from lerobot_taxdpd.maths.metrics import rotation_error_deg
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 
 # The CI learning test's small model; variants override any field.
@@ -80,12 +80,8 @@ def baselines(args) -> dict[str, float]:
     scenes = [
         make_slot_scene(rng, args.num_object_points, args.num_scene_points, args.yaw_range) for _ in range(args.scenes)
     ]
-    copy = [
-        min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals)
-        for s in scenes
-    ]
     return {
-        "copy_start_rotation_deg": float(np.median(copy)),
+        "copy_start_rotation_deg": copy_start_rotation_deg(scenes),
         "mean_pose_rotation_deg": 90.0 if args.yaw_range >= math.pi else float("nan"),
     }
 

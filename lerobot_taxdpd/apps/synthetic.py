@@ -136,6 +136,18 @@ def make_slot_scene(
     return render_slot_scene(sample_slot_layout(rng, yaw_range), rng, num_object_points, num_scene_points)
 
 
+def copy_start_rotation_deg(scenes: list[SlotScene]) -> float:
+    """Median rotation error (deg) of the trivial predictor that keeps the start orientation, the box moved
+    onto the nearer slot: the baseline an orientation-aware model must beat on these scenes."""
+    from lerobot_taxdpd.maths.metrics import rotation_error_deg
+
+    errors = [
+        min(float(rotation_error_deg(s.object_points - s.object_points.mean(0) + g.mean(0), g)) for g in s.valid_goals)
+        for s in scenes
+    ]
+    return float(np.median(errors))
+
+
 def write_slot_dataset(
     root: str | Path,
     repo_id: str = "local/taxdpd_slots",
