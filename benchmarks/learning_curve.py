@@ -125,7 +125,7 @@ class HeldOut:
 
             row = summarise(evaluate(policy, self.trials, self.args.samples, progress=False))
         obj, scene = self.probe_clouds()
-        period = 180.0 if self.args.task.startswith(("mug", "book")) else None  # mirror-symmetric hang/flip
+        period = None if self.args.task == "slots" else self.task.symmetry_period_deg  # the keyed box has none
         turns = goal_turn_response(policy, obj, scene, num_samples=2, symmetry_period_deg=period)
         return row | {f"turn_{k}_deg": v for k, v in turns.items()}
 
