@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lerobot_taxdpd.data.schema import STATE_KEY
 from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
 from lerobot_taxdpd.sim.cloth.expert import ScriptedExpert
 from lerobot_taxdpd.sim.cloth.rollout import demo_target, expert, rollout
@@ -52,3 +53,21 @@ def test_expert_succeeds_on_at_least_90_percent_of_scenes(env, split):
         scene = sample_scene(split, seed)
         successes += rollout(env, scene, expert(*demo_target(scene))).success
     assert successes >= 18, f"{successes}/20 on {split} geometry"
+
+
+def test_dart_noise_perturbs_the_rollout_but_records_the_experts_own_corrections(env):
+    """With --action-noise the expert still hangs the cloth from where the noise pushed it, and the
+    dataset's action is what the expert asked for there, not the noisy displacement that was executed."""
+    scene = sample_scene("train", 3)
+    clean = rollout(env, scene, expert(1, 0), record=True)
+    noisy = rollout(env, scene, expert(1, 0), record=True, action_noise=0.02, noise_rng=np.random.default_rng(0))
+    assert noisy.success
+    states = np.stack([o[STATE_KEY] for o in noisy.observations])
+    executed = states[1:, :6] - states[:-1, :6]  # gripper displacement between observations
+    recorded = np.stack(noisy.actions)[:-1]
+    assert np.abs(executed - recorded).mean() > 0.01  # about the noise's 0.02 m std
+    assert np.abs(np.stack(clean.actions) - np.stack(noisy.actions)).mean() > 1e-3  # other states, other labels
+    replay = rollout(env, scene, expert(1, 0), record=True, action_noise=0.02, noise_rng=np.random.default_rng(0))
+    np.testing.assert_allclose(np.stack(replay.actions), np.stack(noisy.actions), atol=1e-6)
+    with pytest.raises(ValueError, match="noise_rng"):
+        rollout(env, scene, expert(1, 0), action_noise=0.02)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d
 
 from lerobot_taxdpd import GcDp3Config, make_gc_dp3_pre_post_processors
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
@@ -56,6 +57,15 @@ def test_defaults_follow_dp3_cloth_variant():
     assert config.optimizer_betas == (0.95, 0.999) and config.optimizer_weight_decay == 1e-6
     assert config.observation_delta_indices == [-1, 0] and config.action_delta_indices == [0, 1, 2, 3]
     assert config.cloud_keys == CLOUDS
+
+
+def test_the_denoiser_is_lerobots_unet_and_film_follows_the_flag():
+    """The action denoiser is LeRobot's diffusion-policy U-Net; only the point encoder is gc_dp3's own."""
+    policy = GcDp3Policy(make_config())
+    assert isinstance(policy.model.unet, DiffusionConditionalUnet1d)
+    shift_only = GcDp3Policy(make_config(use_film_scale_modulation=False))
+    count = lambda module: sum(p.numel() for p in module.parameters())  # noqa: E731
+    assert count(shift_only.model.unet) < count(policy.model.unet)  # FiLM predicts shifts only
 
 
 @pytest.mark.parametrize(

@@ -36,6 +36,7 @@ CLOTH_ONLY = {
     "object_cloud_size": "--object-cloud-size",
     "scene_cloud_size": "--scene-cloud-size",
     "workers": "--workers",
+    "action_noise": "--action-noise",
     "ground_truth_goals": "--ground-truth-goals",
     "goal_threshold": "--goal-threshold",
     "ship": "--ship",
@@ -83,6 +84,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--scene-cloud-size", type=int, default=None, help="hanger points stored per frame (default: 512)"
     )
     cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
+    cloth.add_argument(
+        "--action-noise",
+        type=float,
+        default=None,
+        help="DART: the expert's actions are executed with Gaussian noise of this std (metres a coordinate) "
+        "while the dataset records the expert's own actions, so the policy sees recoveries (default: 0)",
+    )
 
     evaluate = verbs.add_parser("eval", help="evaluate a goal predictor (cloth_hang: and an executor), held out")
     evaluate.add_argument("--task", required=True, choices=tasks)
@@ -204,6 +212,7 @@ def _generate(args: argparse.Namespace, command: str) -> int:
                 frames_per_episode=args.frames_per_episode,
                 object_cloud_size=args.object_cloud_size,
                 scene_cloud_size=args.scene_cloud_size,
+                action_noise=args.action_noise,
             ),
         )
         print(json.dumps(summary, indent=2))

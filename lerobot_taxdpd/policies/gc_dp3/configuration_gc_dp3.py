@@ -55,11 +55,12 @@ class GcDp3Config(PreTrainedConfig):
     point_feature_dim: int = 64
     state_encoder_dims: tuple[int, ...] = (64, 64)
 
-    # ---- 1-D conditional U-Net with FiLM
+    # ---- LeRobot's 1-D conditional U-Net (lerobot.policies.diffusion) with FiLM
     down_dims: tuple[int, ...] = (64, 128, 256)
     kernel_size: int = 5
     n_groups: int = 8
     diffusion_step_embed_dim: int = 128
+    use_film_scale_modulation: bool = True  # DP3 and LeRobot: the condition scales and shifts (False: shifts)
 
     # ---- noise schedule (DDIM, sample prediction, few inference steps)
     num_train_timesteps: int = 100

@@ -2,14 +2,14 @@
 
 Per observation step the clouds [cloth, hanger, goal] are concatenated, each point tagged with its
 block's one-hot segment, and encoded by DP3's compact encoder; a small MLP encodes the end-effector
-state; both features of the last `n_obs_steps` steps condition a 1-D U-Net through FiLM. The U-Net
-denoises a chunk of `horizon` normalised actions with DDIM (sample prediction, few steps).
+state; both features of the last `n_obs_steps` steps condition LeRobot's 1-D U-Net of the diffusion
+policy through FiLM. The U-Net denoises a chunk of `horizon` normalised actions with DDIM (sample
+prediction, few steps). Only the goal-conditioned point encoder and the policy around it are ours.
 """
 
 from __future__ import annotations
 
 import copy
-import math
 from collections import deque
 from pathlib import Path
 
@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from huggingface_hub import ModelCard
+from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
@@ -54,109 +55,6 @@ def mlp(in_dim: int, dims: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-# ------------------------------------------------------------------------------------------ 1-D U-Net
-class SinusoidalEmbedding(nn.Module):
-    def __init__(self, dim: int) -> None:
-        super().__init__()
-        self.dim = dim
-
-    def forward(self, t: Tensor) -> Tensor:
-        half = self.dim // 2
-        freqs = torch.exp(-math.log(10_000) * torch.arange(half, device=t.device) / max(half - 1, 1))
-        angles = t.float()[:, None] * freqs[None]
-        return torch.cat([angles.sin(), angles.cos()], dim=-1)
-
-
-class ConvBlock(nn.Module):
-    """Conv1d -> GroupNorm -> Mish."""
-
-    def __init__(self, in_channels: int, out_channels: int, kernel_size: int, n_groups: int) -> None:
-        super().__init__()
-        self.block = nn.Sequential(
-            nn.Conv1d(in_channels, out_channels, kernel_size, padding=kernel_size // 2),
-            nn.GroupNorm(n_groups, out_channels),
-            nn.Mish(),
-        )
-
-    def forward(self, x: Tensor) -> Tensor:
-        return self.block(x)
-
-
-class FiLMResidualBlock(nn.Module):
-    """Two conv blocks; the conditioning scales and shifts the features between them (FiLM)."""
-
-    def __init__(self, in_channels: int, out_channels: int, cond_dim: int, kernel_size: int, n_groups: int) -> None:
-        super().__init__()
-        self.first = ConvBlock(in_channels, out_channels, kernel_size, n_groups)
-        self.second = ConvBlock(out_channels, out_channels, kernel_size, n_groups)
-        self.film = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * out_channels))
-        self.skip = nn.Conv1d(in_channels, out_channels, 1) if in_channels != out_channels else nn.Identity()
-
-    def forward(self, x: Tensor, cond: Tensor) -> Tensor:
-        scale, shift = self.film(cond).unsqueeze(-1).chunk(2, dim=1)
-        h = self.first(x) * scale + shift
-        return self.second(h) + self.skip(x)
-
-
-class ConditionalUnet1d(nn.Module):
-    """1-D U-Net over the action chunk's time axis, conditioned on timestep and observation features."""
-
-    def __init__(self, action_dim: int, global_cond_dim: int, config: GcDp3Config) -> None:
-        super().__init__()
-        k, g, e = config.kernel_size, config.n_groups, config.diffusion_step_embed_dim
-        self.timestep_embedding = nn.Sequential(
-            SinusoidalEmbedding(e), nn.Linear(e, 4 * e), nn.Mish(), nn.Linear(4 * e, e)
-        )
-        cond_dim = e + global_cond_dim
-        dims = (action_dim, *config.down_dims)
-        levels = list(zip(dims[:-1], dims[1:], strict=True))
-        self.down = nn.ModuleList()
-        for i, (c_in, c_out) in enumerate(levels):
-            last = i == len(levels) - 1
-            self.down.append(
-                nn.ModuleList(
-                    [
-                        FiLMResidualBlock(c_in, c_out, cond_dim, k, g),
-                        FiLMResidualBlock(c_out, c_out, cond_dim, k, g),
-                        nn.Identity() if last else nn.Conv1d(c_out, c_out, 3, stride=2, padding=1),
-                    ]
-                )
-            )
-        deepest = config.down_dims[-1]
-        self.middle = nn.ModuleList(
-            [FiLMResidualBlock(deepest, deepest, cond_dim, k, g), FiLMResidualBlock(deepest, deepest, cond_dim, k, g)]
-        )
-        self.up = nn.ModuleList()
-        for c_in, c_out in reversed(levels[1:]):
-            self.up.append(
-                nn.ModuleList(
-                    [
-                        FiLMResidualBlock(2 * c_out, c_in, cond_dim, k, g),
-                        FiLMResidualBlock(c_in, c_in, cond_dim, k, g),
-                        nn.ConvTranspose1d(c_in, c_in, 4, stride=2, padding=1),
-                    ]
-                )
-            )
-        first = config.down_dims[0]
-        self.head = nn.Sequential(ConvBlock(first, first, k, g), nn.Conv1d(first, action_dim, 1))
-
-    def forward(self, x: Tensor, timestep: Tensor, global_cond: Tensor) -> Tensor:
-        """x (B, T, A), timestep (B,), global_cond (B, D) -> (B, T, A)."""
-        cond = torch.cat([self.timestep_embedding(timestep), global_cond], dim=-1)
-        h = x.transpose(1, 2)
-        skips = []
-        for block_a, block_b, downsample in self.down:
-            h = block_b(block_a(h, cond), cond)
-            skips.append(h)
-            h = downsample(h)
-        for block in self.middle:
-            h = block(h, cond)
-        for block_a, block_b, upsample in self.up:
-            h = torch.cat([h, skips.pop()], dim=1)
-            h = upsample(block_b(block_a(h, cond), cond))
-        return self.head(h).transpose(1, 2)
-
-
 # -------------------------------------------------------------------------------------------- the net
 class GcDp3Model(nn.Module):
     """Observation encoders, denoiser and noise schedule; knows nothing of queues or normalisation."""
@@ -170,7 +68,9 @@ class GcDp3Model(nn.Module):
         self.state_encoder = mlp(state_dim, config.state_encoder_dims)
         step_dim = config.point_feature_dim + config.state_encoder_dims[-1]
         self.action_dim = config.output_features[ACTION_KEY].shape[0]
-        self.unet = ConditionalUnet1d(self.action_dim, step_dim * config.n_obs_steps, config)
+        # LeRobot's diffusion-policy U-Net reads the sizes it needs (down_dims, kernel_size, n_groups,
+        # diffusion_step_embed_dim, use_film_scale_modulation, action_feature) from this config.
+        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=step_dim * config.n_obs_steps)
         self.scheduler = DDIMScheduler(
             num_train_timesteps=config.num_train_timesteps,
             beta_schedule=config.beta_schedule,

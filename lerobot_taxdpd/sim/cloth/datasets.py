@@ -65,6 +65,7 @@ class DemoRequest:
     scene_cloud_size: int
     want_goal: bool
     want_policy: bool
+    action_noise: float = 0.0
 
 
 def simulate_demo(request: DemoRequest) -> Demo:
@@ -73,7 +74,11 @@ def simulate_demo(request: DemoRequest) -> Demo:
     try:
         scene = sample_scene(request.split, request.seed, env.ranges)
         hole, hanger = demo_target(scene)
-        episode = rollout(env, scene, expert(hole, hanger), record=request.want_policy)
+        noise_rng = np.random.default_rng([SPLITS.index(request.split), request.seed, 4])
+        episode = rollout(
+            env, scene, expert(hole, hanger), record=request.want_policy,
+            action_noise=request.action_noise, noise_rng=noise_rng,
+        )
         demo = Demo(request.seed, hole, hanger, episode.success, episode.seconds, [], [])
         if not episode.success:
             return demo
@@ -138,6 +143,7 @@ def generate(
     object_cloud_size: int = 512,
     scene_cloud_size: int = 512,
     workers: int = 1,
+    action_noise: float = 0.0,
     overwrite: bool = False,
     command: str | None = None,
     progress: bool = True,
@@ -147,6 +153,8 @@ def generate(
         raise ValueError(f"dataset: must be one of {DATASET_KINDS}, got {kind!r}")
     if episodes < 1:
         raise ValueError(f"episodes: must be at least 1, got {episodes}")
+    if action_noise < 0:
+        raise ValueError(f"--action-noise: must be >= 0 metres, got {action_noise}")
     if frames_per_episode < 2:
         raise ValueError(
             f"--frames-per-episode: a goal-prediction episode needs at least 2 frames, got {frames_per_episode}"
@@ -159,10 +167,16 @@ def generate(
         command=command,
         tags=["cloth", "deformable", "pybullet", "simulation"],
         hub_license="apache-2.0",
-        details={"split": split, "scene seeds": f"{seed}..{seed + episodes - 1}"},
+        details={
+            "split": split,
+            "scene seeds": f"{seed}..{seed + episodes - 1}",
+            "expert action noise (DART, metres)": action_noise,
+        },
     )
     requests = [
-        DemoRequest(split, s, frames_per_episode, object_cloud_size, scene_cloud_size, want_goal, want_policy)
+        DemoRequest(
+            split, s, frames_per_episode, object_cloud_size, scene_cloud_size, want_goal, want_policy, action_noise
+        )
         for s in range(seed, seed + episodes)
     ]
     seconds, successes = [], 0

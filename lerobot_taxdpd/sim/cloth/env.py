@@ -138,7 +138,7 @@ class ClothHangEnv(gym.Env):
         delta = np.asarray(action, dtype=np.float64)
         if delta.shape != (6,) or not np.isfinite(delta).all():
             raise ValueError(f"action: expected 6 finite gripper deltas (metres), got shape {delta.shape}")
-        delta = self._limit(delta.reshape(2, 3))
+        delta = self.limit_action(delta).reshape(2, 3)
         start = self.gripper_positions()
         n = self.settings.substeps_per_action
         for k in range(1, n + 1):
@@ -286,10 +286,11 @@ class ClothHangEnv(gym.Env):
         for _ in range(steps):
             p.stepSimulation(physicsClientId=self._client)
 
-    def _limit(self, delta: np.ndarray) -> np.ndarray:
-        """Clip each gripper's displacement to `max_gripper_step` (keeps its direction)."""
+    def limit_action(self, action: np.ndarray) -> np.ndarray:
+        """The 6-d action the env executes: each gripper's displacement clipped to `max_gripper_step`."""
+        delta = np.asarray(action, dtype=np.float64).reshape(2, 3)
         norm = np.linalg.norm(delta, axis=1, keepdims=True)
-        return delta * np.minimum(1.0, self.settings.max_gripper_step / np.maximum(norm, 1e-12))
+        return (delta * np.minimum(1.0, self.settings.max_gripper_step / np.maximum(norm, 1e-12))).reshape(6)
 
     def _info(self) -> dict[str, Any]:
         return {"step": self._steps, "hole_centroids": self.hole_centroids()}

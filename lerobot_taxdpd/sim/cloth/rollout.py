@@ -30,24 +30,39 @@ class Episode:
     final_vertices: np.ndarray  # cloth mesh after release and settling
     seconds: float
     observations: list[dict[str, np.ndarray]] = field(default_factory=list)  # o_t, before action t
-    actions: list[np.ndarray] = field(default_factory=list)  # the deltas the grippers executed
+    actions: list[np.ndarray] = field(default_factory=list)  # the controller's actions, as the env limits them
 
 
 def rollout(
-    env: ClothHangEnv, scene: ClothScene, make_controller: Callable[[ClothHangEnv], Controller], record: bool = False
+    env: ClothHangEnv,
+    scene: ClothScene,
+    make_controller: Callable[[ClothHangEnv], Controller],
+    record: bool = False,
+    action_noise: float = 0.0,
+    noise_rng: np.random.Generator | None = None,
 ) -> Episode:
-    """Reset to `scene`, act until the env releases the cloth, return what happened."""
+    """Reset to `scene`, act until the env releases the cloth, return what happened.
+
+    `action_noise` > 0 executes each action plus Gaussian noise of that std (metres, per coordinate) while
+    the recorded action stays the controller's own (DART): a closed-loop expert then demonstrates how to
+    recover from the drift a learnt policy will make.
+    """
+    if action_noise < 0:
+        raise ValueError(f"action_noise: must be >= 0 metres, got {action_noise}")
+    if action_noise > 0 and noise_rng is None:
+        raise ValueError("action_noise: needs a noise_rng so that the episode can be replayed")
     started = time.perf_counter()
     observation, _ = env.reset(options={"scene": scene})
     start_vertices = env.cloth_vertices()
     controller = make_controller(env)
     observations, actions = [], []
     while True:
-        action = controller(observation)
-        next_observation, _, terminated, _, info = env.step(action)
+        action = np.asarray(controller(observation), dtype=np.float64)
+        executed = action + noise_rng.normal(0.0, action_noise, size=6) if action_noise > 0 else action
+        next_observation, _, terminated, _, info = env.step(executed)
         if record:
             observations.append(observation)
-            actions.append(info["applied_action"])
+            actions.append(env.limit_action(action).astype(np.float32))
         observation = next_observation
         if terminated:
             break
