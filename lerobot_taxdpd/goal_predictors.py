@@ -5,8 +5,13 @@ safetensors weights, model card, `metrics.json` with its measured success, proce
 offline on a fresh install. Anything else is handed to `TaxDPDPolicy.from_pretrained`: a local checkpoint
 folder, or a Hub repo id resolved by huggingface_hub (its cache and `HF_HUB_OFFLINE=1` are respected).
 
-    python -m lerobot_taxdpd.goal_predictors list               # names, tasks and measured metrics
-    python -m lerobot_taxdpd.goal_predictors path mug_easyrack  # a folder for `--policy.path=...`
+A task whose goals are executed by a learnt policy (cloth_hang) ships that `gc_dp3` executor under the same
+name, in `pretrained/<name>/executor/`: `resolve_executor("cloth_hang")` finds it, so one name gives the
+whole pipeline.
+
+    python -m lerobot_taxdpd.goal_predictors list                    # names, tasks and measured metrics
+    python -m lerobot_taxdpd.goal_predictors path mug_easyrack       # a folder for `--goal-policy.path=...`
+    python -m lerobot_taxdpd.goal_predictors path cloth_hang --executor  # a folder for `--policy.path=...`
 """
 
 from __future__ import annotations
@@ -19,6 +24,8 @@ from pathlib import Path
 from lerobot_taxdpd.data.schema import METRICS_FILE
 
 SHIPPED_DIR = Path(__file__).parent / "pretrained"
+#: Where a shipped name keeps its gc_dp3 executor, if its task has one.
+EXECUTOR_DIR = "executor"
 
 
 def _shipped() -> dict[str, Path]:
@@ -45,15 +52,32 @@ def list_goal_predictors() -> dict[str, dict]:
 
 def resolve_goal_predictor(name_or_path: str | Path) -> str:
     """A shipped name, an existing folder, or a Hub repo id ('owner/name') -> what `from_pretrained` takes."""
+    return _resolve(name_or_path, _shipped(), "goal predictor", "taxdpd")
+
+
+def shipped_executors() -> dict[str, Path]:
+    """Shipped names that come with a gc_dp3 executor -> its folder."""
+    return {
+        name: folder / EXECUTOR_DIR
+        for name, folder in _shipped().items()
+        if (folder / EXECUTOR_DIR / "config.json").is_file()
+    }
+
+
+def resolve_executor(name_or_path: str | Path) -> str:
+    """A shipped name with an executor, an existing folder, or a Hub repo id -> what gc_dp3 loads."""
+    return _resolve(name_or_path, shipped_executors(), "executor", "gc_dp3")
+
+
+def _resolve(name_or_path: str | Path, shipped: dict[str, Path], kind: str, policy_type: str) -> str:
     text = str(name_or_path)
-    shipped = _shipped()
     if text in shipped:
         return str(shipped[text])
     path = Path(text).expanduser()
     if path.is_dir():
         if not (path / "config.json").is_file():
             raise FileNotFoundError(
-                f"{path}: not a taxdpd checkpoint (no config.json); pass its pretrained_model folder"
+                f"{path}: not a {policy_type} checkpoint (no config.json); pass its pretrained_model folder"
             )
         return str(path)
     parts = text.split("/")
@@ -61,7 +85,7 @@ def resolve_goal_predictor(name_or_path: str | Path) -> str:
         return text
     known = ", ".join(shipped) or "none (this install ships no checkpoints)"
     raise ValueError(
-        f"unknown goal predictor {text!r}: not a shipped name, a checkpoint folder or a Hub repo id "
+        f"unknown {kind} {text!r}: not a shipped name, a checkpoint folder or a Hub repo id "
         f"'owner/name'; shipped names: {known}"
     )
 
@@ -119,10 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     verbs.add_parser("list", help="shipped names with their measured metrics")
     path = verbs.add_parser("path", help="the checkpoint folder or Hub id a name resolves to")
     path.add_argument("name")
+    path.add_argument("--executor", action="store_true", help="the name's gc_dp3 executor instead (cloth_hang)")
     args = parser.parse_args(argv)
     if args.verb == "path":
         try:
-            print(resolve_goal_predictor(args.name))
+            print(resolve_executor(args.name) if args.executor else resolve_goal_predictor(args.name))
         except (ValueError, FileNotFoundError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 1
@@ -134,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
             if success
             else "not evaluated"
         )
-        print(f"{name:<20} {figures:<40} {metrics.get('description', '')}")
+        executor = " (+ gc_dp3 executor)" if name in shipped_executors() else ""
+        print(f"{name:<20} {figures:<40} {metrics.get('description', '')}{executor}")
     return 0
 
 

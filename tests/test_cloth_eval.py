@@ -18,6 +18,7 @@ from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, S
 from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 from lerobot_taxdpd.sim.cli import main
+from lerobot_taxdpd.sim.cloth.evaluation import load_gc_dp3
 
 CLOUD = PolicyFeature(FeatureType.STATE, (512, 3))
 
@@ -41,10 +42,14 @@ def checkpoints(tmp_path_factory):
         diffusion_step_embed_dim=16,
         num_inference_steps=2,
         points_per_cloud=64,
+        use_ema=True,
         device="cpu",
     )
     torch.manual_seed(0)
     policy = GcDp3Policy(config)
+    with torch.no_grad():  # EMA weights that differ from the trained ones, as after training
+        for parameter in policy.ema_model.parameters():
+            parameter.add_(0.01 * torch.randn_like(parameter))
     stats = {
         STATE_KEY: {
             "min": torch.tensor([-4.0, -4.0, 4.0] * 2 + [-2.0] * 6),
@@ -104,6 +109,16 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
         k: summary["predicted_goal"][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")
     }
     assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
+    # The executor ships beside it: the EMA weights it acts with, as its only weights, with the same results.
+    trained = GcDp3Policy.from_pretrained(gc_dp3)
+    executor, _, _ = load_gc_dp3(str(tmp_path / "shipped" / "cloth_hang" / "executor"))
+    assert not executor.config.use_ema and not hasattr(executor, "ema_model")
+    for name, value in trained.ema_model.state_dict().items():
+        torch.testing.assert_close(executor.model.state_dict()[name], value, atol=1e-3, rtol=1e-3)
+    assert executor.metrics["success"] == shipped.metrics["success"]
+    assert executor.metrics["success_with_ground_truth_goals"]["trials"] == 2
+    card = (tmp_path / "shipped" / "cloth_hang" / "executor" / "README.md").read_text()
+    assert "## Measured" in card and "success with ground-truth goals" in card
 
 
 def test_eval_explains_what_is_missing(checkpoints, tmp_path, capsys):

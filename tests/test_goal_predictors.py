@@ -12,8 +12,8 @@ from huggingface_hub import ModelCard
 from lerobot.policies.factory import make_pre_post_processors
 
 from conftest import install_in_hub_cache, run_cli
-from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, list_goal_predictors, load_goal_predictor
-from lerobot_taxdpd.goal_predictors import SHIPPED_DIR, main, resolve_goal_predictor
+from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, goal_predictors, list_goal_predictors, load_goal_predictor
+from lerobot_taxdpd.goal_predictors import SHIPPED_DIR, main, resolve_executor, resolve_goal_predictor
 
 
 def _saved_policy(folder, metrics=None) -> TaxDPDPolicy:
@@ -78,6 +78,24 @@ def test_command_line_lists_names_and_resolves_paths(tmp_path, capsys):
     assert "unknown goal predictor" in capsys.readouterr().err
     listing = run_cli("python", "-m", "lerobot_taxdpd.goal_predictors", "list").stdout
     assert all(name in listing for name in list_goal_predictors())
+
+
+def test_one_shipped_name_gives_the_goal_predictor_and_its_executor(tmp_path, monkeypatch, capsys):
+    """A name whose folder holds executor/ resolves to it for --policy.path; a name without one is refused."""
+    _saved_policy(tmp_path / "cloth_hang")
+    _saved_policy(tmp_path / "mugs")
+    (tmp_path / "cloth_hang" / "executor").mkdir()
+    (tmp_path / "cloth_hang" / "executor" / "config.json").write_text("{}")
+    monkeypatch.setattr(goal_predictors, "SHIPPED_DIR", tmp_path)
+    assert resolve_goal_predictor("cloth_hang") == str(tmp_path / "cloth_hang")
+    assert resolve_executor("cloth_hang") == str(tmp_path / "cloth_hang" / "executor")
+    with pytest.raises(ValueError, match="unknown executor 'mugs'.*shipped names: cloth_hang$"):
+        resolve_executor("mugs")
+    assert main(["path", "cloth_hang", "--executor"]) == 0
+    assert capsys.readouterr().out.strip() == str(tmp_path / "cloth_hang" / "executor")
+    assert main(["list"]) == 0
+    listing = capsys.readouterr().out.splitlines()
+    assert [line.endswith("(+ gc_dp3 executor)") for line in listing] == [True, False]
 
 
 @pytest.mark.parametrize("name", sorted(list_goal_predictors()))

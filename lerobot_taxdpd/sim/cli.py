@@ -127,8 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy.path",
         dest="policy_path",
         metavar="PATH",
-        help="gc_dp3 executor checkpoint (a pretrained_model folder); with --goal-policy.path it executes the "
-        "first predicted goal",
+        help="gc_dp3 executor: a shipped name (cloth_hang), a pretrained_model folder or a Hub id; with "
+        "--goal-policy.path it executes the first predicted goal",
     )
     cloth.add_argument(
         "--ground-truth-goals", action="store_true", default=None, help="also execute a ground-truth goal"
@@ -138,7 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
     cloth.add_argument(
-        "--ship", type=Path, default=None, help="save the goal predictor with these results as <SHIP>/cloth_hang"
+        "--ship", type=Path, default=None, help="save the goal predictor as <SHIP>/cloth_hang and the executor as "
+        "<SHIP>/cloth_hang/executor, each with these results"
     )
 
     pretrain = verbs.add_parser(
@@ -248,7 +249,7 @@ def _workers(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cloth(args: argparse.Namespace) -> int:
-    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_goal_predictor
+    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline
 
     output = args.output or OUTPUT[CLOTH_TASK]
     summary = evaluate(
@@ -268,7 +269,7 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
     print(json.dumps({k: v for k, v in summary.items() if k != "per_trial"}, indent=2))
     print(f"per-trial results: {output / EVAL_FILE}")
     if args.ship is not None:
-        print(f"shipped as {ship_goal_predictor(summary, args.ship)}")
+        print(f"shipped as {ship_pipeline(summary, args.ship)} (goal predictor and executor/)")
     return 0
 
 

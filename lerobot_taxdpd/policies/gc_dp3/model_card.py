@@ -20,8 +20,9 @@ _SHAPE = (
 )
 
 
-def render_model_card(config, dataset_repo_id: str | None, license, tags) -> ModelCard:
-    """What the policy does, how to install, load and evaluate it, its limits and its configuration."""
+def render_model_card(config, metrics: dict, dataset_repo_id: str | None, license, tags) -> ModelCard:
+    """What the policy does, how to install, load and evaluate it, what it measured, its limits and its
+    configuration."""
     folder = "gc_dp3_checkpoint" if config.repo_id else "path/to/pretrained_model"
     download = [f"hf download {config.repo_id} --local-dir {folder}"] if config.repo_id else []
     data = card_data("gc_dp3", license, tags, dataset_repo_id, model_name="gc_dp3", extra_tags=("cloth", "dp3"))
@@ -51,6 +52,7 @@ def render_model_card(config, dataset_repo_id: str | None, license, tags) -> Mod
         "# per control step: {cloth, hangers, goal cloud, 12-d gripper state} -> 6-d gripper deltas (metres)",
         "```",
         "",
+        *_measured(metrics),
         "## Limitations",
         "",
         "- Trained and evaluated on the package's procedural pybullet cloth task only (complete mesh samples,",
@@ -63,3 +65,21 @@ def render_model_card(config, dataset_repo_id: str | None, license, tags) -> Mod
         *config_table(config, _SHAPE),
     ]
     return assemble(data, body)
+
+
+def _measured(metrics: dict) -> list[str]:
+    """The shipped executor's held-out success with ground-truth and predicted goals, with how it was trained."""
+    if not metrics:
+        return []
+    lines = ["## Measured", ""]
+    for key, label in (("success_with_ground_truth_goals", "ground-truth goals"), ("success", "predicted goals")):
+        if key in metrics:
+            rate = metrics[key]
+            lines.append(
+                f"- success with {label}: {rate['success_rate']:.2f} (95% CI {rate['ci95_low']:.2f}-"
+                f"{rate['ci95_high']:.2f}) over {rate['trials']} held-out scenes"
+            )
+    for key in ("evaluation", "data", "training_command", "training_steps", "training_minutes"):
+        if key in metrics:
+            lines.append(f"- {key.replace('_', ' ')}: {metrics[key]}")
+    return [*lines, ""]

@@ -25,6 +25,7 @@ from torch import Tensor, nn
 from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
+from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 
 
 # --------------------------------------------------------------------------------------------- encoders
@@ -143,6 +144,7 @@ class GcDp3Policy(PreTrainedPolicy):
             self.ema_model = copy.deepcopy(self.model).requires_grad_(False)
             self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
         self._queues: dict[str, deque] = {}
+        self.metrics: dict = {}  # measured results saved beside the weights (metrics.json), e.g. when shipped
         self.reset()
 
     @property
@@ -154,11 +156,30 @@ class GcDp3Policy(PreTrainedPolicy):
 
     def _save_pretrained(self, save_directory: Path) -> None:
         super()._save_pretrained(save_directory)
+        save_metrics(self.metrics, save_directory)
         card = self.generate_model_card(None, self.name, self.config.license, self.config.tags)
         card.save(str(Path(save_directory) / "README.md"))
 
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path, **kwargs):
+        policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
+        policy.metrics = load_metrics(pretrained_name_or_path, kwargs)
+        return policy
+
     def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
-        return render_model_card(self.config, dataset_repo_id, license, tags)
+        return render_model_card(self.config, self.metrics, dataset_repo_id, license, tags)
+
+    def without_ema(self) -> GcDp3Policy:
+        """The same policy whose trained weights are the EMA weights it acts with, without the EMA copy:
+        half the size to ship, the same actions."""
+        if not self.config.use_ema:
+            return self
+        config = copy.deepcopy(self.config)
+        config.use_ema = False
+        plain = GcDp3Policy(config)
+        plain.model.load_state_dict(self.ema_model.state_dict())
+        plain.metrics = dict(self.metrics)
+        return plain
 
     def reset(self) -> None:
         steps = self.config.n_obs_steps

@@ -9,7 +9,6 @@ drawn around the true centroid (not from the GMM), as in the paper.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import warnings
 from dataclasses import dataclass
@@ -17,13 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from huggingface_hub import ModelCard, hf_hub_download
-from huggingface_hub.errors import EntryNotFoundError, LocalEntryNotFoundError
+from huggingface_hub import ModelCard
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
 from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
-from lerobot_taxdpd.data.schema import ACTION_KEY, METRICS_FILE, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
 from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
@@ -32,6 +30,7 @@ from lerobot_taxdpd.maths.geometry import (
     lift_point_motion,
     nearest_indices,
 )
+from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 from lerobot_taxdpd.policies.taxdpd.augmentation import (
     ball_cut,
     downsample_indices,
@@ -385,8 +384,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------------------------ saving and loading
     def _save_pretrained(self, save_directory: Path) -> None:
         super()._save_pretrained(save_directory)
-        if self.metrics:
-            (Path(save_directory) / METRICS_FILE).write_text(json.dumps(self.metrics, indent=2))
+        save_metrics(self.metrics, save_directory)
         self.generate_model_card(None, self.name, self.config.license, self.config.tags).save(
             str(Path(save_directory) / "README.md")
         )
@@ -394,27 +392,8 @@ class TaxDPDPolicy(PreTrainedPolicy):
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path, **kwargs):
         policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
-        policy.metrics = _load_metrics(pretrained_name_or_path, kwargs)
+        policy.metrics = load_metrics(pretrained_name_or_path, kwargs)
         return policy
 
     def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
         return render_model_card(self.config, self.metrics, dataset_repo_id, license, tags)
-
-
-def _load_metrics(pretrained_name_or_path, kwargs: dict) -> dict:
-    """metrics.json beside the weights (local folder or Hub repo), or {} when there is none."""
-    path = Path(pretrained_name_or_path) / METRICS_FILE
-    if not Path(pretrained_name_or_path).is_dir():
-        try:
-            path = Path(
-                hf_hub_download(
-                    str(pretrained_name_or_path),
-                    METRICS_FILE,
-                    revision=kwargs.get("revision"),
-                    cache_dir=kwargs.get("cache_dir"),
-                    local_files_only=kwargs.get("local_files_only", False),
-                )
-            )
-        except (EntryNotFoundError, LocalEntryNotFoundError, OSError):
-            return {}
-    return json.loads(path.read_text()) if path.exists() else {}

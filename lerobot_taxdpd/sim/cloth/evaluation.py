@@ -50,12 +50,15 @@ class TrialRequest:
     torch_threads: int
 
 
-def load_gc_dp3(path: str, device: str):
-    """The policy and its saved processors from a checkpoint folder (`.../pretrained_model`)."""
+def load_gc_dp3(path: str, device: str = "cpu"):
+    """The policy and its saved processors from a shipped name (`cloth_hang`), a checkpoint folder
+    (`.../pretrained_model`) or a Hub repo id."""
     from lerobot.policies.factory import make_pre_post_processors
 
+    from lerobot_taxdpd.goal_predictors import resolve_executor
     from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
+    path = resolve_executor(path)
     policy = GcDp3Policy.from_pretrained(path)
     policy.config.device = device
     policy.to(device).eval()
@@ -106,7 +109,7 @@ def run_trial(request: TrialRequest) -> dict:
         if not goals:
             result["seconds"] = time.perf_counter() - started
             return result
-        executor = load_gc_dp3(request.policy_path, request.device) if request.policy_path else None
+        executor = _executor(request.policy_path, request.device) if request.policy_path else None
         if request.ground_truth_goals and executor is not None:
             torch.manual_seed(request.seed)
             result["ground_truth_pair"] = list(keys[0])
@@ -153,6 +156,12 @@ def _outcome(episode: Episode) -> dict:
         "hole_at_a_peg_before_release": bool(episode.pre_release.any()),
         "seconds": episode.seconds,
     }
+
+
+@functools.lru_cache(maxsize=2)
+def _executor(path: str, device: str):
+    """The executor and its processors, loaded once per worker process (`policy_controller` resets it)."""
+    return load_gc_dp3(path, device)
 
 
 @functools.lru_cache(maxsize=2)
@@ -235,17 +244,10 @@ def evaluate(
             "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
-    if policy_path and not (Path(policy_path) / "config.json").is_file():
-        raise FileNotFoundError(
-            f"--policy.path: {policy_path} has no config.json (expected a checkpoint's pretrained_model folder)"
-        )
-    if goal_policy_path:
-        from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
+    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor
 
-        try:
-            goal_policy_path = resolve_goal_predictor(goal_policy_path)
-        except (ValueError, FileNotFoundError) as error:
-            raise type(error)(f"--goal-policy.path: {error}") from error
+    policy_path = _resolved("--policy.path", policy_path, resolve_executor)
+    goal_policy_path = _resolved("--goal-policy.path", goal_policy_path, resolve_goal_predictor)
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     config = {
@@ -279,41 +281,68 @@ def evaluate(
     return summary
 
 
-def ship_goal_predictor(summary: dict, destination: Path) -> Path:
-    """Save the evaluated goal predictor as a shipped `cloth_hang` predictor, with this evaluation as its
-    metrics (success executed by the gc_dp3 checkpoint of the run, coverage and precision RMSE)."""
-    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+def _resolved(flag: str, name_or_path: str | None, resolve: Callable[[str], str]) -> str | None:
+    """A checkpoint source resolved (shipped name, folder, Hub id); a bad one is reported under its flag."""
+    if not name_or_path:
+        return name_or_path
+    try:
+        return resolve(name_or_path)
+    except (ValueError, FileNotFoundError) as error:
+        raise type(error)(f"{flag}: {error}") from error
+
+
+def ship_pipeline(summary: dict, destination: Path) -> Path:
+    """Save the evaluated goal predictor as the shipped `cloth_hang` and its gc_dp3 executor as
+    `cloth_hang/executor`, each with this evaluation as its metrics (success with the predicted goal and, when
+    measured, with ground-truth goals; coverage and precision RMSE for the goal predictor)."""
+    from lerobot_taxdpd.goal_predictors import EXECUTOR_DIR, load_goal_predictor
+    from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
     from lerobot_taxdpd.sim.pretrain import save_shipped
 
     config = summary["config"]
-    if not config["goal_policy_path"] or "predicted_goal" not in summary:
+    if not (config["goal_policy_path"] and config["policy_path"]) or "predicted_goal" not in summary:
         raise ValueError("--ship: needs --goal-policy.path and --policy.path (success with the predicted goal)")
-    checkpoint = Path(config["goal_policy_path"])
-    train_config = checkpoint / "train_config.json"
-    trained = json.loads(train_config.read_text()) if train_config.is_file() else {}
-    dataset = trained.get("dataset", {})
     rates = {
         name: {k: summary[name][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
         for name in ("predicted_goal", "ground_truth_goal")
         if name in summary
     }
-    policy = load_goal_predictor(checkpoint)
-    policy.metrics = {
+    evaluated = {
         "task": "cloth_hang",
         "description": TASK_DESCRIPTION,
+        "evaluation": f"{summary['trials']} held-out scenes (split {config['split']}, seeds {config['seeds']}), "
+        f"K = {config['num_goal_samples']}, goal predictor {config['goal_policy_path']} executed by gc_dp3 "
+        f"{config['policy_path']}",
+        "license": "apache-2.0",
+        "success": rates["predicted_goal"],
+        **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
+        "seconds_per_trial": summary["median_seconds_per_trial"],
+    }
+    shipped = Path(destination) / "cloth_hang"
+    goal_checkpoint = Path(config["goal_policy_path"])
+    goal_predictor = load_goal_predictor(goal_checkpoint)
+    goal_predictor.metrics = {
+        **_training(goal_checkpoint),
+        **evaluated,
+        **summary.get("goal_metrics", {}),
+        "coverage_threshold": config["goal_threshold_m"],
+    }
+    save_shipped(goal_predictor, goal_checkpoint, shipped)
+    executor_checkpoint = Path(config["policy_path"])
+    executor = GcDp3Policy.from_pretrained(executor_checkpoint).without_ema()
+    executor.metrics = {**_training(executor_checkpoint), **evaluated}
+    save_shipped(executor, executor_checkpoint, shipped / EXECUTOR_DIR)
+    return shipped
+
+
+def _training(checkpoint: Path) -> dict:
+    """How a checkpoint was trained, from the train_config.json lerobot-train saved beside it."""
+    train_config = checkpoint / "train_config.json"
+    trained = json.loads(train_config.read_text()) if train_config.is_file() else {}
+    dataset = trained.get("dataset", {})
+    return {
         "data": f"dataset {dataset.get('repo_id', '?')} ({dataset.get('root', '?')})",
         "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run)",
         "training_steps": trained.get("steps"),
         "batch_size": trained.get("batch_size"),
-        "evaluation": f"{summary['trials']} held-out scenes (split {config['split']}, seeds {config['seeds']}), "
-        f"K = {config['num_goal_samples']}, executed by gc_dp3 {config['policy_path']}",
-        "license": "apache-2.0",
-        "success": rates["predicted_goal"],
-        **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
-        **summary.get("goal_metrics", {}),
-        "coverage_threshold": config["goal_threshold_m"],
-        "seconds_per_trial": summary["median_seconds_per_trial"],
     }
-    shipped = Path(destination) / "cloth_hang"
-    save_shipped(policy, checkpoint, shipped)
-    return shipped
