@@ -109,6 +109,7 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
         k: summary["predicted_goal"][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")
     }
     assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
+    assert shipped.metrics["coverage@3"] == metrics["coverage"]  # named as the rigid tasks name it
     # The executor ships beside it: the EMA weights it acts with, as its only weights, with the same results.
     trained = GcDp3Policy.from_pretrained(gc_dp3)
     executor, _, _ = load_gc_dp3(str(tmp_path / "shipped" / "cloth_hang" / "executor"))

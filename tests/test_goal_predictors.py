@@ -150,3 +150,26 @@ def test_every_shipped_card_names_its_task_reports_its_metrics_for_the_hub_and_r
     namespace: dict = {}
     exec(compile(example, f"{name}/README.md", "exec"), namespace)  # the card's example runs as written
     assert namespace["goals"].shape[:2] == (1, 10)
+
+
+@pytest.mark.parametrize("name", sorted(goal_predictors.shipped_executors()))
+def test_every_shipped_executor_loads_by_name_acts_and_states_its_success(name):
+    """`--policy.path cloth_hang` works offline: weights, processors, a current card and measured success."""
+    from lerobot_taxdpd.sim.cloth.evaluation import load_gc_dp3
+
+    folder = SHIPPED_DIR / name / "executor"
+    assert (folder / "model.safetensors").stat().st_size < 16 * 2**20, "shipped checkpoints must stay small"
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["task"] == name and "lerobot-train" in metrics["training_command"]
+    for key in ("success", "success_with_ground_truth_goals"):
+        assert 0.0 <= metrics[key]["success_rate"] <= 1.0 and metrics[key]["trials"] >= 100
+    policy, preprocessor, postprocessor = load_gc_dp3(name)
+    assert not policy.config.use_ema, "the shipped executor keeps only the EMA weights it acts with"
+    fresh = policy.generate_model_card(None, policy.name, policy.config.license, policy.config.tags)
+    assert (folder / "README.md").read_text().strip() == str(fresh).strip(), f"{folder}/README.md is stale"
+    generator = torch.Generator().manual_seed(0)
+    observation = {key: torch.rand(512, 3, generator=generator) for key in policy.config.cloud_keys}
+    observation["observation.state"] = torch.zeros(12)
+    with torch.inference_mode():
+        action = postprocessor(policy.select_action(preprocessor(observation)))
+    assert action.shape == (1, 6) and bool(torch.isfinite(action).all())

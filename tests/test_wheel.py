@@ -119,3 +119,11 @@ def test_a_recipe_is_a_shipped_name_or_a_file(tmp_path, capsys):
     assert recipe_path("taxdpd_cpu").name == "taxdpd_cpu.json"
     assert main(["path", "no_such_recipe"]) == 1
     assert "no_such_recipe: neither a config file nor a shipped recipe (shipped: " in capsys.readouterr().err
+
+
+def test_the_wheel_ships_every_checkpoint_file_of_the_checkout(wheel_site):
+    """Goal predictors and their executors (`<name>/executor/`) load by name only if the wheel carries them."""
+    shipped = ROOT / "lerobot_taxdpd" / "pretrained"
+    in_checkout = {p.relative_to(shipped) for p in shipped.rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+    packaged = wheel_site / "lerobot_taxdpd" / "pretrained"
+    assert in_checkout and {p.relative_to(packaged) for p in packaged.rglob("*") if p.is_file()} == in_checkout

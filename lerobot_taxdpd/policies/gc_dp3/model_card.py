@@ -23,8 +23,10 @@ _SHAPE = (
 def render_model_card(config, metrics: dict, dataset_repo_id: str | None, license, tags) -> ModelCard:
     """What the policy does, how to install, load and evaluate it, what it measured, its limits and its
     configuration."""
-    folder = "gc_dp3_checkpoint" if config.repo_id else "path/to/pretrained_model"
-    download = [f"hf download {config.repo_id} --local-dir {folder}"] if config.repo_id else []
+    # A shipped executor is loaded by its task's name; a Hub or local checkpoint by its folder.
+    shipped = metrics.get("task")
+    folder = shipped or ("gc_dp3_checkpoint" if config.repo_id else "path/to/pretrained_model")
+    download = [f"hf download {config.repo_id} --local-dir {folder}"] if config.repo_id and not shipped else []
     data = card_data("gc_dp3", license, tags, dataset_repo_id, model_name="gc_dp3", extra_tags=("cloth", "dp3"))
     body = [
         "# gc_dp3: goal-conditioned 3D Diffusion Policy for cloth hanging",
@@ -79,7 +81,7 @@ def _measured(metrics: dict) -> list[str]:
                 f"- success with {label}: {rate['success_rate']:.2f} (95% CI {rate['ci95_low']:.2f}-"
                 f"{rate['ci95_high']:.2f}) over {rate['trials']} held-out scenes"
             )
-    for key in ("evaluation", "data", "training_command", "training_steps", "training_minutes"):
+    for key in ("evaluation", "data", "training_command", "training_steps"):
         if key in metrics:
             lines.append(f"- {key.replace('_', ' ')}: {metrics[key]}")
     return [*lines, ""]

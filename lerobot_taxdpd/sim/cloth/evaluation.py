@@ -295,7 +295,7 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     """Save the evaluated goal predictor as the shipped `cloth_hang` and its gc_dp3 executor as
     `cloth_hang/executor`, each with this evaluation as its metrics (success with the predicted goal and, when
     measured, with ground-truth goals; coverage and precision RMSE for the goal predictor)."""
-    from lerobot_taxdpd.goal_predictors import EXECUTOR_DIR, load_goal_predictor
+    from lerobot_taxdpd.goal_predictors import EXECUTOR_DIR, SHIPPED_DIR, load_goal_predictor
     from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
     from lerobot_taxdpd.sim.pretrain import save_shipped
 
@@ -311,8 +311,8 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
         "task": "cloth_hang",
         "description": TASK_DESCRIPTION,
         "evaluation": f"{summary['trials']} held-out scenes (split {config['split']}, seeds {config['seeds']}), "
-        f"K = {config['num_goal_samples']}, goal predictor {config['goal_policy_path']} executed by gc_dp3 "
-        f"{config['policy_path']}",
+        f"K = {config['num_goal_samples']}, goal predictor {_source(config['goal_policy_path'], SHIPPED_DIR)} "
+        f"executed by gc_dp3 {config['policy_path']}",
         "license": "apache-2.0",
         "success": rates["predicted_goal"],
         **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
@@ -322,9 +322,10 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     goal_checkpoint = Path(config["goal_policy_path"])
     goal_predictor = load_goal_predictor(goal_checkpoint)
     goal_predictor.metrics = {
+        **goal_predictor.metrics,  # a shipped predictor re-evaluated keeps how it was trained
         **_training(goal_checkpoint),
         **evaluated,
-        **summary.get("goal_metrics", {}),
+        **_at_k(summary.get("goal_metrics", {}), config["num_goal_samples"]),
         "coverage_threshold": config["goal_threshold_m"],
     }
     save_shipped(goal_predictor, goal_checkpoint, shipped)
@@ -335,10 +336,23 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     return shipped
 
 
+def _source(path: str, shipped_dir: Path) -> str:
+    """A checkpoint as a user names it: a shipped one by its name, anything else by its path."""
+    return f"{Path(path).name} (shipped)" if Path(path).resolve().parent == shipped_dir.resolve() else path
+
+
+def _at_k(goal_metrics: dict, num_samples: int) -> dict:
+    """Goal metrics under the rigid tasks' names: coverage and precision become coverage@K and precision@K."""
+    renamed = {"coverage": f"coverage@{num_samples}", "precision": f"precision@{num_samples}"}
+    return {renamed.get(key, key): value for key, value in goal_metrics.items()}
+
+
 def _training(checkpoint: Path) -> dict:
-    """How a checkpoint was trained, from the train_config.json lerobot-train saved beside it."""
+    """How a checkpoint was trained, from the train_config.json lerobot-train saved beside it ({} without one)."""
     train_config = checkpoint / "train_config.json"
-    trained = json.loads(train_config.read_text()) if train_config.is_file() else {}
+    if not train_config.is_file():
+        return {}
+    trained = json.loads(train_config.read_text())
     dataset = trained.get("dataset", {})
     return {
         "data": f"dataset {dataset.get('repo_id', '?')} ({dataset.get('root', '?')})",
