@@ -152,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {error}", file=sys.stderr)
             return 1
         return 0
+    with_executor = shipped_executors()
     for name, metrics in list_goal_predictors().items():
         success = metrics.get("success", {})
         figures = (
@@ -159,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             if success
             else "not evaluated"
         )
-        executor = " (+ gc_dp3 executor)" if name in shipped_executors() else ""
+        executor = " (+ gc_dp3 executor)" if name in with_executor else ""
         print(f"{name:<20} {figures:<40} {metrics.get('description', '')}{executor}")
     return 0
 
