@@ -356,7 +356,8 @@ def _training(checkpoint: Path) -> dict:
     dataset = trained.get("dataset", {})
     return {
         "data": f"dataset {dataset.get('repo_id', '?')} ({dataset.get('root', '?')})",
-        "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run)",
+        "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run"
+        + (", whose last leg resumed an earlier checkpoint with --resume=true)" if trained.get("resume") else ")"),
         "training_steps": trained.get("steps"),
         "batch_size": trained.get("batch_size"),
     }
