@@ -77,6 +77,16 @@ def test_the_denoiser_is_lerobots_unet_and_film_follows_the_flag():
         ({"prediction_type": "v_prediction"}, "prediction_type"),
         ({"num_inference_steps": 0}, "num_inference_steps"),
         ({"points_per_cloud": 0}, "points_per_cloud"),
+        (
+            {
+                "normalization_mapping": {
+                    "STATE": NormalizationMode.MIN_MAX,
+                    "ENV": NormalizationMode.MIN_MAX,
+                    "ACTION": NormalizationMode.MIN_MAX,
+                }
+            },
+            "ENV",
+        ),
     ],
 )
 def test_config_rejects_bad_values(overrides, message):

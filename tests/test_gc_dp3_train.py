@@ -1,4 +1,5 @@
-"""`gc_dp3` through LeRobot's own `lerobot-train`: it learns a goal-conditioned action, then fine-tunes.
+"""`gc_dp3` through LeRobot's own `lerobot-train`: it learns a goal-conditioned action, then fine-tunes and
+resumes with its clouds still in metres.
 
 The tiny dataset has the gc_dp3 schema and one twist: the action depends only on the goal cloud (move
 towards the hanger the goal hangs on), so a policy that ignores its goal input cannot pass the bound.
@@ -116,6 +117,21 @@ def first_actions(checkpoint, dataset_root, swap_goals: bool = False) -> tuple[n
     return np.stack(predicted), np.stack(recorded)
 
 
+def assert_clouds_stay_in_metres(checkpoint, dataset_root):
+    """The checkpoint's preprocessor, as `lerobot-eval` builds it, min-max normalises the state only."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    preprocessor, _ = make_pre_post_processors(
+        config, pretrained_path=str(checkpoint), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+    )
+    frame = LeRobotDataset("local/goal_side", root=dataset_root)[0]
+    processed = preprocessor({key: frame[key] for key in (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY, STATE_KEY)})
+    for key in (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY):
+        torch.testing.assert_close(processed[key][0], frame[key], msg=f"{checkpoint}: {key} was rescaled")
+    assert processed[STATE_KEY].abs().max() <= 1.0 < frame[STATE_KEY].abs().max(), "state is mapped to [-1, 1]"
+
+
 def test_gc_dp3_learns_the_goal_conditioned_action_and_fine_tunes(cli, dataset, tmp_path, monkeypatch):
     # One torch thread: on a small shared CPU, two threads of tiny ops spin against each other (10x slower).
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
@@ -139,3 +155,10 @@ def test_gc_dp3_learns_the_goal_conditioned_action_and_fine_tunes(cli, dataset, 
     tuned = tmp_path / "finetune" / "checkpoints" / "last" / "pretrained_model"
     before, after = GcDp3Policy.from_pretrained(checkpoint), GcDp3Policy.from_pretrained(tuned)
     assert any(not torch.equal(a, b) for a, b in zip(before.parameters(), after.parameters(), strict=True))
+
+    # Starting from a checkpoint, LeRobot's trainer rebuilds the normaliser with every input feature; the
+    # clouds must still enter in metres, as in the first run, whether fine-tuned or resumed.
+    cli("lerobot-train", "--resume=true", "--steps=202", f"--config_path={checkpoint}/train_config.json")
+    first, resumed = (tmp_path / "run" / "checkpoints" / step / "pretrained_model" for step in ("000200", "000202"))
+    for saved_checkpoint in (first, tuned, resumed):
+        assert_clouds_stay_in_metres(saved_checkpoint, dataset)

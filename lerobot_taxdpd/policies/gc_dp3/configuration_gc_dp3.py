@@ -12,7 +12,10 @@ default here is (64, 128, 256) with a narrower point encoder (about 5.4M paramet
 `--policy.down_dims='[512,1024,2048]' --policy.point_encoder_dims='[64,128,256]'` for the paper's size.
 
 Normalisation: state and action are mapped to [-1, 1] with the dataset's min/max (as DP3 does). Point
-clouds are never normalised per axis (that would distort the geometry); they enter in metres.
+clouds are never normalised per axis (that would distort the geometry); they enter in metres. LeRobot types
+every `observation.*` key as STATE, and its trainer rebuilds the normaliser from all input features whenever
+it starts from a checkpoint (`--resume=true`, `--policy.path`), so the clouds are retyped ENV, which this
+config maps to IDENTITY: they stay in metres on every path.
 """
 
 from __future__ import annotations
@@ -20,11 +23,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 
-from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
+from lerobot_taxdpd.data.schema import (
+    ACTION_KEY,
+    GOAL_CLOUD_KEY,
+    OBJECT_KEY,
+    POINT_CLOUD_PREFIX,
+    SCENE_KEY,
+    STATE_KEY,
+)
 
 PREDICTION_TYPES = ("sample", "epsilon")
 
@@ -111,6 +121,15 @@ class GcDp3Config(PreTrainedConfig):
             )
         if self.points_per_cloud is not None and self.points_per_cloud < 1:
             raise ValueError(f"points_per_cloud: must be positive or None, got {self.points_per_cloud}")
+        if self.normalization_mapping.get("ENV", NormalizationMode.IDENTITY) is not NormalizationMode.IDENTITY:
+            raise ValueError(
+                "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV and enter in metres "
+                "(per-axis normalisation would distort the geometry)"
+            )
+
+    def is_cloud(self, key: str) -> bool:
+        """Whether an input feature is a point cloud (never normalised)."""
+        return key in self.cloud_keys or key.startswith(POINT_CLOUD_PREFIX)
 
     # ---- LeRobot hooks
     def get_optimizer_preset(self) -> AdamWConfig:
@@ -126,6 +145,7 @@ class GcDp3Config(PreTrainedConfig):
         return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
 
     def validate_features(self) -> None:
+        """Check the dataset's features (clear errors naming the field), then type the clouds ENV."""
         for key in self.cloud_keys:
             if key not in self.input_features:
                 raise ValueError(
@@ -144,6 +164,11 @@ class GcDp3Config(PreTrainedConfig):
         for key, feature in self.input_features.items():
             if feature.type is FeatureType.VISUAL:
                 raise ValueError(f"gc_dp3 takes point clouds and state only; remove the image feature '{key}'")
+        # ENV maps to IDENTITY, so LeRobot's normaliser override on resume and fine-tune leaves them alone.
+        self.input_features = {
+            key: PolicyFeature(type=FeatureType.ENV, shape=feature.shape) if self.is_cloud(key) else feature
+            for key, feature in self.input_features.items()
+        }
 
     @property
     def observation_delta_indices(self) -> list[int]:

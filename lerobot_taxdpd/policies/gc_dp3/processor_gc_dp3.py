@@ -2,8 +2,8 @@
 
 LeRobot's standard steps are kept (rename, batch, device, normaliser; unnormaliser, device) because
 `lerobot-train --policy.path` and `lerobot-eval` address them by registry name when they pass overrides.
-LeRobot types every `observation.*` key as STATE, so the normaliser is given only the non-cloud features
-(state and action, min/max to [-1, 1] as in DP3): point clouds keep their metric geometry.
+The normaliser is given only the non-cloud features (state and action, min/max to [-1, 1] as in DP3): point
+clouds keep their metric geometry (and are typed ENV, mapped to IDENTITY, for LeRobot's resume override).
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ from lerobot.processor import (
 from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
 from lerobot.utils.constants import POLICY_POSTPROCESSOR_DEFAULT_NAME, POLICY_PREPROCESSOR_DEFAULT_NAME
 
-from lerobot_taxdpd.data.schema import POINT_CLOUD_PREFIX
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.point_cloud_steps import AddPointCloudBatchDimensionStep
 
@@ -38,7 +37,7 @@ def make_gc_dp3_pre_post_processors(
     normalised = {
         key: feature
         for key, feature in {**config.input_features, **config.output_features}.items()
-        if not key.startswith(POINT_CLOUD_PREFIX) and key not in config.cloud_keys
+        if not config.is_cloud(key)
     }
     stats = {key: value for key, value in (dataset_stats or {}).items() if key in normalised}
     preprocessor = PolicyProcessorPipeline[dict[str, Any], dict[str, Any]](
