@@ -163,6 +163,8 @@ def test_every_shipped_executor_loads_by_name_acts_and_states_its_success(name):
     assert metrics["task"] == name and "lerobot-train" in metrics["training_command"]
     for key in ("success", "success_with_ground_truth_goals"):
         assert 0.0 <= metrics[key]["success_rate"] <= 1.0 and metrics[key]["trials"] >= 100
+    saved = json.loads((folder / "config.json").read_text())
+    assert saved["pretrained_path"] is None, "a shipped config must not point at the machine it was trained on"
     policy, preprocessor, postprocessor = load_gc_dp3(name)
     assert not policy.config.use_ema, "the shipped executor keeps only the EMA weights it acts with"
     fresh = policy.generate_model_card(None, policy.name, policy.config.license, policy.config.tags)
