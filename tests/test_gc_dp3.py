@@ -1,4 +1,4 @@
-"""`gc_dp3` pieces: config checks, processors that leave clouds metric, action chunking, EMA."""
+"""`gc_dp3` pieces: config checks, processors that leave clouds metric (unless asked), action chunking, EMA."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import pytest
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d
+from lerobot.processor import PolicyProcessorPipeline
 
 from lerobot_taxdpd import GcDp3Config, make_gc_dp3_pre_post_processors
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
@@ -114,6 +115,34 @@ def test_processors_normalise_state_and_action_but_never_clouds():
     torch.testing.assert_close(processed[ACTION_KEY][0], torch.full((6,), 0.5))
     torch.testing.assert_close(postprocessor(torch.full((1, 6), -0.5)), torch.full((1, 6), -0.05))
     assert config.normalization_mapping["STATE"] is NormalizationMode.MIN_MAX
+
+
+@pytest.mark.parametrize("normalize_clouds", [False, True])
+def test_clouds_come_out_the_same_when_lerobot_rebuilds_the_normaliser(tmp_path, normalize_clouds):
+    """`lerobot-train --resume=true` and `--policy.path` reload the saved preprocessor with the normaliser
+    rebuilt from all of the policy's input features (lerobot_train.py): clouds must come out as they did in
+    the first run, in metres by default and min-max normalised with `normalize_clouds`."""
+    config = make_config(normalize_clouds=normalize_clouds)
+    GcDp3Policy(config)  # types the clouds, as every policy construction does
+    preprocessor, _ = make_gc_dp3_pre_post_processors(config, dataset_stats=stats())
+    preprocessor.save_pretrained(tmp_path)
+    overrides = {
+        "normalizer_processor": {
+            "stats": stats(),
+            "features": {**config.input_features, **config.output_features},
+            "norm_map": config.normalization_mapping,
+        }
+    }
+    rebuilt = PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_preprocessor.json", overrides=overrides
+    )
+    raw = observation()
+    first, resumed = preprocessor(dict(raw)), rebuilt(dict(raw))
+    for key in CLOUDS:
+        expected = raw[key] / 5.0 if normalize_clouds else raw[key]  # stats: every axis in [-5, 5]
+        torch.testing.assert_close(first[key][0], expected)
+        torch.testing.assert_close(resumed[key][0], expected)
+    torch.testing.assert_close(resumed[STATE_KEY][0], raw[STATE_KEY] / 2.0)
 
 
 def test_single_observation_runs_end_to_end_and_chunks_actions(monkeypatch):

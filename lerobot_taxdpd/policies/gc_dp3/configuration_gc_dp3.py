@@ -12,10 +12,11 @@ default here is (64, 128, 256) with a narrower point encoder (about 5.4M paramet
 `--policy.down_dims='[512,1024,2048]' --policy.point_encoder_dims='[64,128,256]'` for the paper's size.
 
 Normalisation: state and action are mapped to [-1, 1] with the dataset's min/max (as DP3 does). Point
-clouds are never normalised per axis (that would distort the geometry); they enter in metres. LeRobot types
-every `observation.*` key as STATE, and its trainer rebuilds the normaliser from all input features whenever
-it starts from a checkpoint (`--resume=true`, `--policy.path`), so the clouds are retyped ENV, which this
-config maps to IDENTITY: they stay in metres on every path.
+clouds enter in metres by default. LeRobot types every `observation.*` key as STATE, and its trainer
+rebuilds the normaliser from all input features whenever it starts from a checkpoint (`--resume=true`,
+`--policy.path`), so the clouds are retyped ENV, which this config maps to IDENTITY: they stay in metres on
+every path. `normalize_clouds=True` types them STATE instead, min-max normalised per axis like the state on
+every path (what the resumed legs of the first shipped executor saw, by accident; docs/cloth.md).
 """
 
 from __future__ import annotations
@@ -51,6 +52,8 @@ class GcDp3Config(PreTrainedConfig):
     # Points kept per cloud (None: all): the first rows, which is a farthest-point subset because this
     # project stores every cloud in farthest-point-sampling order. Fewer points make CPU training cheaper.
     points_per_cloud: int | None = None
+    # Min-max normalise the clouds per axis with the dataset's stats, like the state (default: metres).
+    normalize_clouds: bool = False
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
@@ -128,7 +131,7 @@ class GcDp3Config(PreTrainedConfig):
             )
 
     def is_cloud(self, key: str) -> bool:
-        """Whether an input feature is a point cloud (never normalised)."""
+        """Whether an input feature is a point cloud (normalised only with `normalize_clouds`)."""
         return key in self.cloud_keys or key.startswith(POINT_CLOUD_PREFIX)
 
     # ---- LeRobot hooks
@@ -145,7 +148,8 @@ class GcDp3Config(PreTrainedConfig):
         return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
 
     def validate_features(self) -> None:
-        """Check the dataset's features (clear errors naming the field), then type the clouds ENV."""
+        """Check the dataset's features (clear errors naming the field), then type the clouds ENV (metres)
+        or, with `normalize_clouds`, STATE (min-max)."""
         for key in self.cloud_keys:
             if key not in self.input_features:
                 raise ValueError(
@@ -164,9 +168,10 @@ class GcDp3Config(PreTrainedConfig):
         for key, feature in self.input_features.items():
             if feature.type is FeatureType.VISUAL:
                 raise ValueError(f"gc_dp3 takes point clouds and state only; remove the image feature '{key}'")
-        # ENV maps to IDENTITY, so LeRobot's normaliser override on resume and fine-tune leaves them alone.
+        # LeRobot's normaliser override on resume and fine-tune normalises by type: ENV is IDENTITY.
+        cloud_type = FeatureType.STATE if self.normalize_clouds else FeatureType.ENV
         self.input_features = {
-            key: PolicyFeature(type=FeatureType.ENV, shape=feature.shape) if self.is_cloud(key) else feature
+            key: PolicyFeature(type=cloud_type, shape=feature.shape) if self.is_cloud(key) else feature
             for key, feature in self.input_features.items()
         }
 
