@@ -90,17 +90,22 @@ def dataset(tmp_path_factory):
     return write_goal_side_dataset(tmp_path_factory.mktemp("gc_dp3") / "goal_side")
 
 
+def saved_processors(checkpoint):
+    """A checkpoint's pre- and postprocessor, built as `lerobot-eval` builds them."""
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    return make_pre_post_processors(
+        config, pretrained_path=str(checkpoint), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+    )
+
+
 def first_actions(checkpoint, dataset_root, swap_goals: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Predicted and recorded first action of every frame, inference built as lerobot-eval builds it.
 
     With `swap_goals`, every frame gets the goal of the next episode (the other hanger)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    config = PreTrainedConfig.from_pretrained(checkpoint)
     policy = GcDp3Policy.from_pretrained(checkpoint).eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        config, pretrained_path=str(checkpoint), preprocessor_overrides={"device_processor": {"device": "cpu"}}
-    )
+    preprocessor, postprocessor = saved_processors(checkpoint)
     data = LeRobotDataset("local/goal_side", root=dataset_root)
     predicted, recorded = [], []
     generator = torch.Generator().manual_seed(0)
@@ -121,10 +126,7 @@ def assert_clouds_stay_in_metres(checkpoint, dataset_root):
     """The checkpoint's preprocessor, as `lerobot-eval` builds it, min-max normalises the state only."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    config = PreTrainedConfig.from_pretrained(checkpoint)
-    preprocessor, _ = make_pre_post_processors(
-        config, pretrained_path=str(checkpoint), preprocessor_overrides={"device_processor": {"device": "cpu"}}
-    )
+    preprocessor, _ = saved_processors(checkpoint)
     frame = LeRobotDataset("local/goal_side", root=dataset_root)[0]
     processed = preprocessor({key: frame[key] for key in (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY, STATE_KEY)})
     for key in (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY):

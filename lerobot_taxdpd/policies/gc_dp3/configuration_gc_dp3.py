@@ -126,8 +126,8 @@ class GcDp3Config(PreTrainedConfig):
             raise ValueError(f"points_per_cloud: must be positive or None, got {self.points_per_cloud}")
         if self.normalization_mapping.get("ENV", NormalizationMode.IDENTITY) is not NormalizationMode.IDENTITY:
             raise ValueError(
-                "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV and enter in metres "
-                "(per-axis normalisation would distort the geometry)"
+                "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV to enter in metres "
+                "(normalize_clouds=true normalises them per axis instead)"
             )
 
     def is_cloud(self, key: str) -> bool:
