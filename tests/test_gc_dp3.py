@@ -1,4 +1,4 @@
-"""`gc_dp3` pieces: config checks, processors that leave clouds metric (unless asked), action chunking, EMA."""
+"""`gc_dp3` pieces: config checks, how clouds are normalised, action chunking, EMA."""
 
 from __future__ import annotations
 
@@ -78,6 +78,8 @@ def test_the_denoiser_is_lerobots_unet_and_film_follows_the_flag():
         ({"prediction_type": "v_prediction"}, "prediction_type"),
         ({"num_inference_steps": 0}, "num_inference_steps"),
         ({"points_per_cloud": 0}, "points_per_cloud"),
+        ({"cloud_normalization": "per_point"}, "cloud_normalization"),
+        ({"cloud_scale": 0.0}, "cloud_scale"),
         (
             {
                 "normalization_mapping": {
@@ -117,13 +119,13 @@ def test_processors_normalise_state_and_action_but_never_clouds():
     assert config.normalization_mapping["STATE"] is NormalizationMode.MIN_MAX
 
 
-@pytest.mark.parametrize("normalize_clouds", [False, True])
-def test_clouds_come_out_the_same_when_lerobot_rebuilds_the_normaliser(tmp_path, normalize_clouds):
+@pytest.mark.parametrize("mode", ["none", "isotropic", "per_axis"])
+def test_clouds_come_out_the_same_when_lerobot_rebuilds_the_normaliser(tmp_path, mode):
     """`lerobot-train --resume=true` and `--policy.path` reload the saved preprocessor with the normaliser
     rebuilt from all of the policy's input features (lerobot_train.py): clouds must come out as they did in
-    the first run, in metres by default and min-max normalised with `normalize_clouds`."""
-    config = make_config(normalize_clouds=normalize_clouds)
-    GcDp3Policy(config)  # types the clouds, as every policy construction does
+    the first run, untouched unless `cloud_normalization="per_axis"` (then min-max normalised)."""
+    config = make_config(cloud_normalization=mode)
+    GcDp3Policy(config, dataset_stats=stats())  # types the clouds, as every policy construction does
     preprocessor, _ = make_gc_dp3_pre_post_processors(config, dataset_stats=stats())
     preprocessor.save_pretrained(tmp_path)
     overrides = {
@@ -139,10 +141,30 @@ def test_clouds_come_out_the_same_when_lerobot_rebuilds_the_normaliser(tmp_path,
     raw = observation()
     first, resumed = preprocessor(dict(raw)), rebuilt(dict(raw))
     for key in CLOUDS:
-        expected = raw[key] / 5.0 if normalize_clouds else raw[key]  # stats: every axis in [-5, 5]
+        expected = raw[key] / 5.0 if mode == "per_axis" else raw[key]  # stats: every axis in [-5, 5]
         torch.testing.assert_close(first[key][0], expected)
         torch.testing.assert_close(resumed[key][0], expected)
     torch.testing.assert_close(resumed[STATE_KEY][0], raw[STATE_KEY] / 2.0)
+
+
+def test_isotropic_clouds_share_one_origin_and_one_scale_kept_in_the_checkpoint(tmp_path):
+    """The "isotropic" mode maps the box around every cloud of the dataset into [-1, 1] along its longest side with
+    one shift and one scale for all clouds, so the offsets between cloth, hanger and goal only shrink; the
+    checkpoint keeps that frame and does not re-derive it."""
+    data_stats = stats()
+    data_stats[SCENE_KEY] = {"min": torch.tensor([-1.0, -2.0, 0.0]), "max": torch.tensor([3.0, 2.0, 9.0])}
+    policy = GcDp3Policy(make_config(cloud_normalization="isotropic"), dataset_stats=data_stats)
+    assert policy.config.cloud_center == [0.0, 0.0, 2.0] and policy.config.cloud_scale == 7.0  # box [-5, 5]^2 x [-5, 9]
+    batch = observation(batch=(2,))
+    cloud = policy.model.segmented_cloud(batch)[..., :3]
+    torch.testing.assert_close(cloud, torch.cat([(batch[k] - torch.tensor([0.0, 0.0, 2.0])) / 7.0 for k in CLOUDS], 1))
+    policy.save_pretrained(tmp_path)
+    assert "model.cloud_center" not in policy.state_dict(), "config.json carries the frame, not the weights"
+    loaded = GcDp3Policy.from_pretrained(tmp_path)
+    assert (loaded.config.cloud_center, loaded.config.cloud_scale) == ([0.0, 0.0, 2.0], 7.0)
+    torch.testing.assert_close(loaded.model.segmented_cloud(batch), policy.model.segmented_cloud(batch))
+    with pytest.raises(ValueError, match=GOAL_CLOUD_KEY):
+        GcDp3Policy(make_config(cloud_normalization="isotropic"), dataset_stats={OBJECT_KEY: data_stats[OBJECT_KEY]})
 
 
 def test_single_observation_runs_end_to_end_and_chunks_actions(monkeypatch):

@@ -12,17 +12,21 @@ default here is (64, 128, 256) with a narrower point encoder (about 5.4M paramet
 `--policy.down_dims='[512,1024,2048]' --policy.point_encoder_dims='[64,128,256]'` for the paper's size.
 
 Normalisation: state and action are mapped to [-1, 1] with the dataset's min/max (as DP3 does). Point
-clouds enter in metres by default. LeRobot types every `observation.*` key as STATE, and its trainer
-rebuilds the normaliser from all input features whenever it starts from a checkpoint (`--resume=true`,
-`--policy.path`), so the clouds are retyped ENV, which this config maps to IDENTITY: they stay in metres on
-every path. `normalize_clouds=True` types them STATE instead, min-max normalised per axis like the state on
-every path (what the resumed legs of the first shipped executor saw, by accident; docs/cloth.md).
+clouds (`cloud_normalization`): "isotropic" centres every cloud on one origin and divides it by one scale,
+both derived once from the dataset's cloud statistics and saved in config.json, so object, hanger and goal
+keep their shared geometry (DESIGN: never per axis); "none" feeds them in metres; "per_axis" lets LeRobot's
+normaliser min-max them per axis and per cloud like the state (what the resumed legs of the first shipped
+executor saw, by accident; docs/cloth.md). LeRobot types every `observation.*` key as STATE, and its
+trainer rebuilds the normaliser from all input features whenever it starts from a checkpoint
+(`--resume=true`, `--policy.path`), so except with "per_axis" the clouds are retyped ENV, which this config
+maps to IDENTITY: the normaliser never touches them, on every path.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.optim.optimizers import AdamWConfig
@@ -38,6 +42,7 @@ from lerobot_taxdpd.data.schema import (
 )
 
 PREDICTION_TYPES = ("sample", "epsilon")
+CLOUD_NORMALIZATIONS = ("none", "isotropic", "per_axis")
 
 
 @PreTrainedConfig.register_subclass("gc_dp3")
@@ -52,8 +57,11 @@ class GcDp3Config(PreTrainedConfig):
     # Points kept per cloud (None: all): the first rows, which is a farthest-point subset because this
     # project stores every cloud in farthest-point-sampling order. Fewer points make CPU training cheaper.
     points_per_cloud: int | None = None
-    # Min-max normalise the clouds per axis with the dataset's stats, like the state (default: metres).
-    normalize_clouds: bool = False
+    # How the clouds enter the network (module docstring): "none", "isotropic" or "per_axis".
+    cloud_normalization: str = "none"
+    # "isotropic": the clouds' shared origin (metres) and metres per unit; derived from the dataset when unset.
+    cloud_center: list[float] | None = None
+    cloud_scale: float | None = None
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
@@ -127,11 +135,19 @@ class GcDp3Config(PreTrainedConfig):
         if self.normalization_mapping.get("ENV", NormalizationMode.IDENTITY) is not NormalizationMode.IDENTITY:
             raise ValueError(
                 "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV to enter in metres "
-                "(normalize_clouds=true normalises them per axis instead)"
+                "(cloud_normalization=per_axis normalises them per axis instead)"
             )
+        if self.cloud_normalization not in CLOUD_NORMALIZATIONS:
+            raise ValueError(
+                f"cloud_normalization: must be one of {CLOUD_NORMALIZATIONS}, got {self.cloud_normalization!r}"
+            )
+        if self.cloud_center is not None and len(self.cloud_center) != 3:
+            raise ValueError(f"cloud_center: expected 3 coordinates, got {self.cloud_center}")
+        if self.cloud_scale is not None and not self.cloud_scale > 0:
+            raise ValueError(f"cloud_scale: must be positive, got {self.cloud_scale}")
 
     def is_cloud(self, key: str) -> bool:
-        """Whether an input feature is a point cloud (normalised only with `normalize_clouds`)."""
+        """Whether an input feature is a point cloud (normalised by LeRobot's normaliser only "per_axis")."""
         return key in self.cloud_keys or key.startswith(POINT_CLOUD_PREFIX)
 
     # ---- LeRobot hooks
@@ -149,7 +165,7 @@ class GcDp3Config(PreTrainedConfig):
 
     def validate_features(self) -> None:
         """Check the dataset's features (clear errors naming the field), then type the clouds ENV (metres)
-        or, with `normalize_clouds`, STATE (min-max)."""
+        or, with `cloud_normalization="per_axis"`, STATE (min-max)."""
         for key in self.cloud_keys:
             if key not in self.input_features:
                 raise ValueError(
@@ -169,11 +185,28 @@ class GcDp3Config(PreTrainedConfig):
             if feature.type is FeatureType.VISUAL:
                 raise ValueError(f"gc_dp3 takes point clouds and state only; remove the image feature '{key}'")
         # LeRobot's normaliser override on resume and fine-tune normalises by type: ENV is IDENTITY.
-        cloud_type = FeatureType.STATE if self.normalize_clouds else FeatureType.ENV
+        cloud_type = FeatureType.STATE if self.cloud_normalization == "per_axis" else FeatureType.ENV
         self.input_features = {
             key: PolicyFeature(type=cloud_type, shape=feature.shape) if self.is_cloud(key) else feature
             for key, feature in self.input_features.items()
         }
+
+    def derive_cloud_frame(self, dataset_stats: dict[str, dict] | None) -> None:
+        """For "isotropic": the origin and scale that map the bounding box of every cloud in the dataset
+        into [-1, 1] along its longest side, from LeRobot's per-feature min/max (kept once set)."""
+        if self.cloud_normalization != "isotropic" or (self.cloud_center is not None and self.cloud_scale is not None):
+            return
+        missing = [key for key in self.cloud_keys if key not in (dataset_stats or {})]
+        if missing:
+            raise ValueError(
+                f"cloud_normalization=isotropic: no dataset statistics for {missing}; train on a dataset, or "
+                "give cloud_center and cloud_scale"
+            )
+        low = torch.stack([torch.as_tensor(dataset_stats[k]["min"]).reshape(-1, 3).amin(0) for k in self.cloud_keys])
+        high = torch.stack([torch.as_tensor(dataset_stats[k]["max"]).reshape(-1, 3).amax(0) for k in self.cloud_keys])
+        low, high = low.amin(0).double(), high.amax(0).double()
+        self.cloud_center = ((low + high) / 2).tolist()
+        self.cloud_scale = float((high - low).amax() / 2)
 
     @property
     def observation_delta_indices(self) -> list[int]:

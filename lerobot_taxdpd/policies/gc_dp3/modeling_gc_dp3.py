@@ -63,6 +63,14 @@ class GcDp3Model(nn.Module):
     def __init__(self, config: GcDp3Config) -> None:
         super().__init__()
         self.config = config
+        if config.cloud_normalization == "isotropic" and (config.cloud_center is None or config.cloud_scale is None):
+            raise ValueError("cloud_normalization=isotropic needs cloud_center and cloud_scale (derive_cloud_frame)")
+        isotropic = config.cloud_normalization == "isotropic"
+        # Not saved in the state dict: config.json carries them, so checkpoints of every mode load alike.
+        self.register_buffer(
+            "cloud_center", torch.tensor(config.cloud_center if isotropic else [0.0] * 3), persistent=False
+        )
+        self.register_buffer("cloud_scale", torch.tensor(config.cloud_scale if isotropic else 1.0), persistent=False)
         num_blocks = len(config.cloud_keys)
         self.point_encoder = PointCloudEncoder(3 + num_blocks, config.point_encoder_dims, config.point_feature_dim)
         state_dim = config.input_features[STATE_KEY].shape[0]
@@ -83,10 +91,11 @@ class GcDp3Model(nn.Module):
         )
 
     def segmented_cloud(self, batch: dict[str, Tensor]) -> Tensor:
-        """Concatenate the clouds (..., N_k, 3) into (..., sum N_k, 3 + K), each row tagged with its block."""
+        """Concatenate the clouds (..., N_k, 3) into (..., sum N_k, 3 + K), each row tagged with its block,
+        in the clouds' shared frame (the identity unless `cloud_normalization="isotropic"`)."""
         blocks = []
         for index, key in enumerate(self.config.cloud_keys):
-            points = batch[key][..., : self.config.points_per_cloud, :]
+            points = (batch[key][..., : self.config.points_per_cloud, :] - self.cloud_center) / self.cloud_scale
             tag = F.one_hot(torch.tensor(index, device=points.device), len(self.config.cloud_keys))
             blocks.append(torch.cat([points, tag.to(points.dtype).expand(*points.shape[:-1], -1)], dim=-1))
         return torch.cat(blocks, dim=-2)
@@ -135,9 +144,10 @@ class GcDp3Policy(PreTrainedPolicy):
     config_class = GcDp3Config
     name = "gc_dp3"
 
-    def __init__(self, config: GcDp3Config, **kwargs) -> None:
+    def __init__(self, config: GcDp3Config, dataset_stats: dict | None = None, **kwargs) -> None:
         super().__init__(config)
         config.validate_features()
+        config.derive_cloud_frame(dataset_stats)
         self.config = config
         self.model = GcDp3Model(config)
         if config.use_ema:

@@ -3,8 +3,8 @@
 LeRobot's standard steps are kept (rename, batch, device, normaliser; unnormaliser, device) because
 `lerobot-train --policy.path` and `lerobot-eval` address them by registry name when they pass overrides.
 The normaliser is given the state and action (min/max to [-1, 1] as in DP3) and, only with
-`normalize_clouds`, the clouds; by default they keep their metric geometry (and are typed ENV, mapped to
-IDENTITY, for LeRobot's resume override).
+`cloud_normalization="per_axis"`, the clouds; otherwise the policy scales them itself, isotropically or not
+at all (they are typed ENV, mapped to IDENTITY, for LeRobot's resume override).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def make_gc_dp3_pre_post_processors(
     normalised = {
         key: feature
         for key, feature in {**config.input_features, **config.output_features}.items()
-        if config.normalize_clouds or not config.is_cloud(key)
+        if config.cloud_normalization == "per_axis" or not config.is_cloud(key)
     }
     stats = {key: value for key, value in (dataset_stats or {}).items() if key in normalised}
     preprocessor = PolicyProcessorPipeline[dict[str, Any], dict[str, Any]](
