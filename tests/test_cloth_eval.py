@@ -43,6 +43,8 @@ def checkpoints(tmp_path_factory):
         num_inference_steps=2,
         points_per_cloud=64,
         use_ema=True,
+        cloud_center=[0.0, -1.0, 4.0],  # the isotropic frame a trained checkpoint carries
+        cloud_scale=5.0,
         device="cpu",
     )
     torch.manual_seed(0)

@@ -21,6 +21,9 @@ SMALL = {
     "diffusion_step_embed_dim": 16,
     "num_inference_steps": 3,
     "device": "cpu",
+    # Policies built here have no dataset, from which the default ("isotropic") derives its frame: that mode
+    # is tested on its own below and through lerobot-train (test_gc_dp3_train.py).
+    "cloud_normalization": "none",
 }
 
 

@@ -1,5 +1,5 @@
 """`gc_dp3` through LeRobot's own `lerobot-train`: it learns a goal-conditioned action, then fine-tunes and
-resumes with its clouds still in metres.
+resumes with its clouds in the frame of the first run.
 
 The tiny dataset has the gc_dp3 schema and one twist: the action depends only on the goal cloud (move
 towards the hanger the goal hangs on), so a policy that ignores its goal input cannot pass the bound.
@@ -122,8 +122,9 @@ def first_actions(checkpoint, dataset_root, swap_goals: bool = False) -> tuple[n
     return np.stack(predicted), np.stack(recorded)
 
 
-def assert_clouds_stay_in_metres(checkpoint, dataset_root):
-    """The checkpoint's preprocessor, as `lerobot-eval` builds it, min-max normalises the state only."""
+def assert_clouds_keep_the_first_runs_frame(checkpoint, dataset_root, frame_of_first_run):
+    """The checkpoint's preprocessor, as `lerobot-eval` builds it, min-max normalises the state only, and the
+    policy keeps the isotropic cloud frame the first run derived from the dataset."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     preprocessor, _ = saved_processors(checkpoint)
@@ -132,6 +133,8 @@ def assert_clouds_stay_in_metres(checkpoint, dataset_root):
     for key in (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY):
         torch.testing.assert_close(processed[key][0], frame[key], msg=f"{checkpoint}: {key} was rescaled")
     assert processed[STATE_KEY].abs().max() <= 1.0 < frame[STATE_KEY].abs().max(), "state is mapped to [-1, 1]"
+    saved = json.loads((checkpoint / "config.json").read_text())
+    assert (saved["cloud_normalization"], saved["cloud_center"], saved["cloud_scale"]) == frame_of_first_run
 
 
 def test_gc_dp3_learns_the_goal_conditioned_action_and_fine_tunes(cli, dataset, tmp_path, monkeypatch):
@@ -142,6 +145,8 @@ def test_gc_dp3_learns_the_goal_conditioned_action_and_fine_tunes(cli, dataset, 
     checkpoint = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((checkpoint / "config.json").read_text())
     assert saved["type"] == "gc_dp3" and saved["horizon"] == 4 and saved["n_obs_steps"] == 2
+    frame_of_first_run = ("isotropic", saved["cloud_center"], saved["cloud_scale"])
+    assert len(saved["cloud_center"]) == 3 and saved["cloud_scale"] > 0, "derived from the dataset's stats"
 
     predicted, recorded = first_actions(checkpoint, dataset)
     # Ignoring the goal, the best guess for the grippers' x motion is 0: error SPEED on every frame.
@@ -159,8 +164,8 @@ def test_gc_dp3_learns_the_goal_conditioned_action_and_fine_tunes(cli, dataset, 
     assert any(not torch.equal(a, b) for a, b in zip(before.parameters(), after.parameters(), strict=True))
 
     # Starting from a checkpoint, LeRobot's trainer rebuilds the normaliser with every input feature; the
-    # clouds must still enter in metres, as in the first run, whether fine-tuned or resumed.
+    # clouds must still enter as in the first run, whether fine-tuned or resumed.
     cli("lerobot-train", "--resume=true", "--steps=202", f"--config_path={checkpoint}/train_config.json")
     first, resumed = (tmp_path / "run" / "checkpoints" / step / "pretrained_model" for step in ("000200", "000202"))
     for saved_checkpoint in (first, tuned, resumed):
-        assert_clouds_stay_in_metres(saved_checkpoint, dataset)
+        assert_clouds_keep_the_first_runs_frame(saved_checkpoint, dataset, frame_of_first_run)

@@ -57,8 +57,8 @@ class GcDp3Config(PreTrainedConfig):
     # Points kept per cloud (None: all): the first rows, which is a farthest-point subset because this
     # project stores every cloud in farthest-point-sampling order. Fewer points make CPU training cheaper.
     points_per_cloud: int | None = None
-    # How the clouds enter the network (module docstring): "none", "isotropic" or "per_axis".
-    cloud_normalization: str = "none"
+    # How the clouds enter the network (module docstring): "isotropic" (measured best), "none" or "per_axis".
+    cloud_normalization: str = "isotropic"
     # "isotropic": the clouds' shared origin (metres) and metres per unit; derived from the dataset when unset.
     cloud_center: list[float] | None = None
     cloud_scale: float | None = None
