@@ -210,8 +210,9 @@ class GcDp3Config(PreTrainedConfig):
         missing = [key for key in self.cloud_keys if key not in (dataset_stats or {})]
         if missing:
             raise ValueError(
-                f"cloud_normalization=isotropic: no dataset statistics for {missing}; train on a dataset, or "
-                "give cloud_center and cloud_scale"
+                f"cloud_normalization=isotropic: no dataset statistics for {missing}; train on a dataset or give "
+                "cloud_center and cloud_scale. A checkpoint saved before this option existed fed its clouds in "
+                'metres: set "cloud_normalization": "none" in its config.json'
             )
         low = torch.stack([torch.as_tensor(dataset_stats[k]["min"]).reshape(-1, 3).amin(0) for k in self.cloud_keys])
         high = torch.stack([torch.as_tensor(dataset_stats[k]["max"]).reshape(-1, 3).amax(0) for k in self.cloud_keys])

@@ -76,11 +76,7 @@ class GcDp3Model(nn.Module):
         super().__init__()
         self.config = config
         if config.cloud_normalization == "isotropic" and (config.cloud_center is None or config.cloud_scale is None):
-            raise ValueError(
-                "cloud_normalization=isotropic needs cloud_center and cloud_scale, derived from the dataset's stats "
-                "when training; a checkpoint saved before this option existed fed its clouds in metres: set "
-                '"cloud_normalization": "none" in its config.json'
-            )
+            raise ValueError("cloud_normalization=isotropic needs cloud_center and cloud_scale (derive_cloud_frame)")
         isotropic = config.cloud_normalization == "isotropic"
         # Not saved in the state dict: config.json carries them, so checkpoints of every mode load alike.
         self.register_buffer(
