@@ -10,7 +10,7 @@ from lerobot.processor import PolicyProcessorPipeline
 
 from lerobot_taxdpd import GcDp3Config, make_gc_dp3_pre_post_processors
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, OBJECT_KEY, SCENE_KEY, STATE_KEY
-from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy, turned_about_vertical
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 
 CLOUDS = (OBJECT_KEY, SCENE_KEY, GOAL_CLOUD_KEY)
 SMALL = {
@@ -83,8 +83,6 @@ def test_the_denoiser_is_lerobots_unet_and_film_follows_the_flag():
         ({"points_per_cloud": 0}, "points_per_cloud"),
         ({"cloud_normalization": "per_point"}, "cloud_normalization"),
         ({"cloud_scale": 0.0}, "cloud_scale"),
-        ({"goal_yaw_range": 20.0, "cloud_normalization": "per_axis"}, "goal_yaw_range"),
-        ({"goal_yaw_range": 20.0, "cloud_keys": (OBJECT_KEY, SCENE_KEY)}, "goal_yaw_range"),
         (
             {
                 "normalization_mapping": {
@@ -170,40 +168,6 @@ def test_isotropic_clouds_share_one_origin_and_one_scale_kept_in_the_checkpoint(
     torch.testing.assert_close(loaded.model.segmented_cloud(batch), policy.model.segmented_cloud(batch))
     with pytest.raises(ValueError, match=GOAL_CLOUD_KEY):
         GcDp3Policy(make_config(cloud_normalization="isotropic"), dataset_stats={OBJECT_KEY: data_stats[OBJECT_KEY]})
-
-
-def yaw_between(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
-    """The turn about z (degrees) taking each cloud (..., N, 3) to its turned copy, fitted in the xy plane."""
-    a, b = before - before.mean(-2, keepdim=True), after - after.mean(-2, keepdim=True)
-    cross = (a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]).sum(-1)
-    dot = (a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]).sum(-1)
-    return torch.rad2deg(torch.atan2(cross, dot))
-
-
-def test_goal_yaw_augmentation_turns_the_goal_rigidly_about_the_vertical_and_only_in_training(monkeypatch):
-    generator = torch.Generator().manual_seed(0)
-    goal = torch.randn(256, 2, 24, 3, generator=generator)
-    goal[:, 1] = goal[:, 0]  # the goal is the same at both observation steps
-    turned = turned_about_vertical(goal, 30.0, generator)
-    torch.testing.assert_close(turned.mean(-2), goal.mean(-2))  # about the centroid
-    torch.testing.assert_close(turned[..., 2], goal[..., 2])  # about the vertical
-    torch.testing.assert_close(turned[:, 0], turned[:, 1])  # one angle per element, every step alike
-    torch.testing.assert_close(torch.cdist(turned, turned), torch.cdist(goal, goal), atol=1e-4, rtol=0)
-    angles = yaw_between(goal[:, 0], turned[:, 0])
-    assert angles.abs().max() <= 30.0 + 1e-3 and angles.min() < -25 and angles.max() > 25  # uniform in +-30
-
-    policy = GcDp3Policy(make_config(goal_yaw_range=30.0))
-    seen = []
-    encode = policy.model.segmented_cloud
-    monkeypatch.setattr(
-        policy.model, "segmented_cloud", lambda batch: seen.append(batch[GOAL_CLOUD_KEY]) or encode(batch)
-    )
-    batch = observation(batch=(8, 2)) | {ACTION_KEY: torch.zeros(8, 4, 6)}
-    policy.forward(batch)
-    trained_on = yaw_between(batch[GOAL_CLOUD_KEY][:, 0], seen[-1][:, 0])
-    assert trained_on.abs().min() > 1e-2 and trained_on.abs().max() <= 30.0 + 1e-3
-    policy.eval().predict_action_chunk(observation(batch=(1,)))
-    torch.testing.assert_close(seen[-1][:, -1], observation(batch=(1,))[GOAL_CLOUD_KEY])  # acting: the goal as given
 
 
 def test_single_observation_runs_end_to_end_and_chunks_actions(monkeypatch):

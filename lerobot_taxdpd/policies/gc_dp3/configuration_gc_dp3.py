@@ -62,10 +62,6 @@ class GcDp3Config(PreTrainedConfig):
     # "isotropic": the clouds' shared origin (metres) and metres per unit; derived from the dataset when unset.
     cloud_center: list[float] | None = None
     cloud_scale: float | None = None
-    # Training only: the goal cloud turned about the vertical through its centroid by a random angle in
-    # +-goal_yaw_range degrees, so the executor takes the approach from the hanger and the goal only says
-    # where; predicted goals are 10-30 deg off in yaw (docs/cloth.md).
-    goal_yaw_range: float = 0.0
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
@@ -144,13 +140,6 @@ class GcDp3Config(PreTrainedConfig):
         if self.cloud_normalization not in CLOUD_NORMALIZATIONS:
             raise ValueError(
                 f"cloud_normalization: must be one of {CLOUD_NORMALIZATIONS}, got {self.cloud_normalization!r}"
-            )
-        if self.goal_yaw_range < 0:
-            raise ValueError(f"goal_yaw_range: must be >= 0 degrees, got {self.goal_yaw_range}")
-        if self.goal_yaw_range and (GOAL_CLOUD_KEY not in self.cloud_keys or self.cloud_normalization == "per_axis"):
-            raise ValueError(
-                "goal_yaw_range: needs the goal cloud among cloud_keys and cloud_normalization none or isotropic "
-                "(a turn in per-axis units is not rigid)"
             )
         if self.cloud_center is not None and len(self.cloud_center) != 3:
             raise ValueError(f"cloud_center: expected 3 coordinates, got {self.cloud_center}")

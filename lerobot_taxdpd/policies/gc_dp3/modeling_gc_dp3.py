@@ -10,7 +10,6 @@ prediction, few steps). Only the goal-conditioned point encoder and the policy a
 from __future__ import annotations
 
 import copy
-import math
 from collections import deque
 from pathlib import Path
 
@@ -23,8 +22,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
-from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_CLOUD_KEY, STATE_KEY
-from lerobot_taxdpd.maths.geometry import rotation_about_z
+from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
@@ -59,16 +57,6 @@ def mlp(in_dim: int, dims: tuple[int, ...]) -> nn.Sequential:
 
 
 # -------------------------------------------------------------------------------------------- the net
-def turned_about_vertical(clouds: Tensor, max_degrees: float, generator: torch.Generator | None = None) -> Tensor:
-    """Each batch element's clouds (B, ..., N, 3) turned about the vertical (z) through their centroid by one
-    random angle, uniform in +-max_degrees; every time step of an element turns alike."""
-    batch = clouds.shape[0]
-    angles = (torch.rand(batch, generator=generator, device=clouds.device) * 2 - 1) * math.radians(max_degrees)
-    rotation = rotation_about_z(angles.to(clouds.dtype)).reshape(batch, *[1] * (clouds.dim() - 3), 3, 3)
-    centroid = clouds.flatten(1, -2).mean(1).reshape(batch, *[1] * (clouds.dim() - 2), 3)
-    return (clouds - centroid) @ rotation.transpose(-1, -2) + centroid
-
-
 class GcDp3Model(nn.Module):
     """Observation encoders, denoiser and noise schedule; knows nothing of queues or normalisation."""
 
@@ -122,8 +110,6 @@ class GcDp3Model(nn.Module):
 
     def compute_loss(self, batch: dict[str, Tensor]) -> Tensor:
         actions = batch[ACTION_KEY]
-        if self.config.goal_yaw_range > 0:
-            batch = {**batch, GOAL_CLOUD_KEY: turned_about_vertical(batch[GOAL_CLOUD_KEY], self.config.goal_yaw_range)}
         cond = self.global_condition(batch)
         noise = torch.randn_like(actions)
         steps = torch.randint(0, self.config.num_train_timesteps, (actions.shape[0],), device=actions.device)
