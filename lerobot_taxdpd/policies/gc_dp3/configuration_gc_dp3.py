@@ -57,7 +57,7 @@ class GcDp3Config(PreTrainedConfig):
     # Points kept per cloud (None: all): the first rows, which is a farthest-point subset because this
     # project stores every cloud in farthest-point-sampling order. Fewer points make CPU training cheaper.
     points_per_cloud: int | None = None
-    # How the clouds enter the network (module docstring): "isotropic" (measured best), "none" or "per_axis".
+    # How the clouds enter the network (module docstring): "isotropic", "none" or "per_axis" (docs/cloth.md).
     cloud_normalization: str = "isotropic"
     # "isotropic": the clouds' shared origin (metres) and metres per unit; derived from the dataset when unset.
     cloud_center: list[float] | None = None
@@ -134,7 +134,7 @@ class GcDp3Config(PreTrainedConfig):
             raise ValueError(f"points_per_cloud: must be positive or None, got {self.points_per_cloud}")
         if self.normalization_mapping.get("ENV", NormalizationMode.IDENTITY) is not NormalizationMode.IDENTITY:
             raise ValueError(
-                "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV to enter in metres "
+                "normalization_mapping['ENV'] must be IDENTITY: point clouds are typed ENV to bypass the normaliser "
                 "(cloud_normalization=per_axis normalises them per axis instead)"
             )
         if self.cloud_normalization not in CLOUD_NORMALIZATIONS:
@@ -164,8 +164,8 @@ class GcDp3Config(PreTrainedConfig):
         return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
 
     def validate_features(self) -> None:
-        """Check the dataset's features (clear errors naming the field), then type the clouds ENV (metres)
-        or, with `cloud_normalization="per_axis"`, STATE (min-max)."""
+        """Check the dataset's features (clear errors naming the field), then type the clouds ENV (left to the
+        policy) or, with `cloud_normalization="per_axis"`, STATE (min-max)."""
         for key in self.cloud_keys:
             if key not in self.input_features:
                 raise ValueError(
