@@ -209,6 +209,14 @@ class GcDp3Config(PreTrainedConfig):
         self.cloud_center = ((low + high) / 2).tolist()
         self.cloud_scale = float((high - low).amax() / 2)
 
+    def cloud_frame(self) -> tuple[list[float], float]:
+        """The origin (metres) and scale the policy maps every cloud with: the identity unless "isotropic"."""
+        if self.cloud_normalization != "isotropic":
+            return [0.0, 0.0, 0.0], 1.0
+        if self.cloud_center is None or self.cloud_scale is None:
+            raise ValueError("cloud_normalization=isotropic needs cloud_center and cloud_scale (derive_cloud_frame)")
+        return self.cloud_center, self.cloud_scale
+
     @property
     def observation_delta_indices(self) -> list[int]:
         return list(range(1 - self.n_obs_steps, 1))

@@ -63,14 +63,10 @@ class GcDp3Model(nn.Module):
     def __init__(self, config: GcDp3Config) -> None:
         super().__init__()
         self.config = config
-        if config.cloud_normalization == "isotropic" and (config.cloud_center is None or config.cloud_scale is None):
-            raise ValueError("cloud_normalization=isotropic needs cloud_center and cloud_scale (derive_cloud_frame)")
-        isotropic = config.cloud_normalization == "isotropic"
+        center, scale = config.cloud_frame()
         # Not saved in the state dict: config.json carries them, so checkpoints of every mode load alike.
-        self.register_buffer(
-            "cloud_center", torch.tensor(config.cloud_center if isotropic else [0.0] * 3), persistent=False
-        )
-        self.register_buffer("cloud_scale", torch.tensor(config.cloud_scale if isotropic else 1.0), persistent=False)
+        self.register_buffer("cloud_center", torch.tensor(center), persistent=False)
+        self.register_buffer("cloud_scale", torch.tensor(scale), persistent=False)
         num_blocks = len(config.cloud_keys)
         self.point_encoder = PointCloudEncoder(3 + num_blocks, config.point_encoder_dims, config.point_feature_dim)
         state_dim = config.input_features[STATE_KEY].shape[0]
