@@ -102,6 +102,12 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     metrics = summary["goal_metrics"]
     assert 0.0 < metrics["precision_rmse"] and 0.0 < metrics["coverage_rmse"]
     assert 0.0 <= metrics["coverage"] <= 1.0 and 0.0 <= metrics["precision"] <= 1.0
+    # The trivial baseline beside the goal metrics: one copied start cloth, so coverage RMSE >= precision RMSE.
+    copied = summary["copy_start_goal_metrics"]
+    assert copied["coverage_rmse"] >= copied["precision_rmse"] > 0.0
+    turns = summary["equivariance_deg"]
+    assert turns["trials"] == 2 and turns["ideal"] == {"scene_yaw": 20.0, "object_yaw": 0.0, "object_tilt": 0.0}
+    assert all(abs(turns[name]) <= 180.0 for name in ("scene_yaw", "object_yaw", "object_tilt"))
     figures = sorted((out / "figures").glob("*.png"))
     assert [p.name for p in figures] == ["test_0008.png"]
     assert figures[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -112,6 +118,9 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     }
     assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
     assert shipped.metrics["coverage@3"] == metrics["coverage"]  # named as the rigid tasks name it
+    assert shipped.metrics["equivariance_deg"] == turns and shipped.metrics["copy_start_goal_metrics"] == copied
+    card = (tmp_path / "shipped" / "cloth_hang" / "README.md").read_text()
+    assert "- Orientation: turning the scene by 20 deg" in card and "the start cloth moved to the goal's" in card
     # The executor ships beside it: the EMA weights it acts with, as its only weights, with the same results.
     trained = GcDp3Policy.from_pretrained(gc_dp3)
     executor, _, _ = load_gc_dp3(str(tmp_path / "shipped" / "cloth_hang" / "executor"))

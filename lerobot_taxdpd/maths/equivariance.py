@@ -80,3 +80,32 @@ def goal_turn_response(
             values = _fold(np.degrees(np.arctan2(motion[..., 1, 0], motion[..., 0, 0])), symmetry_period_deg)
         response[name] = float(np.median(values))
     return response
+
+
+def equivariance_report(
+    predictor,
+    object_points,
+    scene_points,
+    *,
+    angle_deg: float = 20.0,
+    tilt_deg: float = 10.0,
+    symmetry_period_deg: float | None = None,
+) -> dict:
+    """`goal_turn_response` (4 samples a scene) with the probe's settings and ideal answers beside it: the
+    `equivariance_deg` entry of a shipped predictor's metrics, which its model card renders."""
+    turns = goal_turn_response(
+        predictor,
+        object_points,
+        scene_points,
+        angle_deg=angle_deg,
+        tilt_deg=tilt_deg,
+        num_samples=4,
+        symmetry_period_deg=symmetry_period_deg,
+    )
+    return {
+        "angle": angle_deg,
+        "tilt_angle": tilt_deg,
+        "trials": len(object_points),
+        **turns,
+        "ideal": {"scene_yaw": angle_deg, "object_yaw": 0.0, "object_tilt": 0.0},
+    }

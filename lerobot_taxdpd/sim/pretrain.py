@@ -153,17 +153,14 @@ def pretrain(
 def orientation_checks(policy, task, trials: list) -> dict:
     """Does the predictor read orientation off the scene? The equivariance probe on the first held-out trials,
     and the trivial baselines (true position; start or mean goal orientation) on all of them."""
-    from lerobot_taxdpd.maths.equivariance import goal_turn_response
+    from lerobot_taxdpd.maths.equivariance import equivariance_report
     from lerobot_taxdpd.sim.predictors import OraclePredictor
 
-    probe, angle, tilt = trials[:8], 20.0, 10.0
-    turns = goal_turn_response(
+    probe = trials[:8]
+    equivariance = equivariance_report(
         policy,
         np.stack([t.object_points for t in probe]),
         np.stack([t.scene_points for t in probe]),
-        angle_deg=angle,
-        tilt_deg=tilt,
-        num_samples=4,
         symmetry_period_deg=task.symmetry_period_deg,
     )
     baselines = {}
@@ -174,13 +171,7 @@ def orientation_checks(policy, task, trials: list) -> dict:
             "rotation_error_deg_median": report["rotation_error_deg"]["median"],
         }
     return {
-        "equivariance_deg": {
-            "angle": angle,
-            "tilt_angle": tilt,
-            "trials": len(probe),
-            **turns,
-            "ideal": {"scene_yaw": angle, "object_yaw": 0.0, "object_tilt": 0.0},
-        },
+        "equivariance_deg": equivariance,
         "baselines_true_position": baselines,
     }
 

@@ -159,6 +159,12 @@ def _orientation(metrics: dict) -> list[str]:
             f"{copy['success_rate']:.0%} ({copy['rotation_error_deg_median']:.1f} deg), the mean goal "
             f"orientation {mean['success_rate']:.0%} ({mean['rotation_error_deg_median']:.1f} deg)."
         )
+    copied = metrics.get("copy_start_goal_metrics")
+    if copied:
+        lines.append(
+            f"- Trivial baseline, same scenes: the start cloth moved to the goal's centroid, shape and orientation "
+            f"copied, has coverage / precision RMSE {copied['coverage_rmse']:.2f} / {copied['precision_rmse']:.2f}."
+        )
     return lines
 
 

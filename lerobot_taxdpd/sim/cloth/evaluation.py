@@ -34,6 +34,8 @@ from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 
 #: The report `evaluate` writes into its output folder, beside `figures/`.
 EVAL_FILE = "cloth_hang_eval.json"
+#: Held-out scenes (the first of the evaluated seeds) the equivariance probe runs on.
+PROBE_SCENES = 8
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,12 @@ def run_trial(request: TrialRequest) -> dict:
                 request.device,
             )
             result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
+            # The trivial baseline beside it: the start cloth, unchanged in shape and orientation, moved to the
+            # centroid of the ground-truth goal.
+            copied = start_cloud - start_cloud.mean(0) + goals[0].mean(0)
+            result["copy_start_goal_metrics"] = coverage_precision(
+                copied[None], np.stack(goals), request.goal_threshold
+            )
             if executor is not None:
                 torch.manual_seed(request.seed)
                 result["predicted_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, predicted[0])))
@@ -210,9 +218,10 @@ def summarise(trials: list[dict], config: dict, workers: int) -> dict:
             reached = sum(r["hole_at_a_peg_before_release"] for r in runs)
             summary[name]["hole_at_a_peg_before_release"] = reached / len(runs)
             summary[name]["median_seconds_per_episode"] = float(np.median([r["seconds"] for r in runs]))
-    metrics = [t["goal_metrics"] for t in trials if "goal_metrics" in t]
-    if metrics:
-        summary["goal_metrics"] = {key: float(np.mean([m[key] for m in metrics])) for key in metrics[0]}
+    for name in ("goal_metrics", "copy_start_goal_metrics"):
+        metrics = [t[name] for t in trials if name in t]
+        if metrics:
+            summary[name] = {key: float(np.mean([m[key] for m in metrics])) for key in metrics[0]}
     summary["per_trial"] = trials
     return summary
 
@@ -277,8 +286,29 @@ def evaluate(
     ]
     results = tqdm(run_trials(requests, workers), total=len(requests), desc="cloth_hang trials", disable=not progress)
     summary = summarise(list(results), config, workers)
+    if goal_policy_path:
+        probed = range(seed, seed + min(trials, PROBE_SCENES))
+        summary["equivariance_deg"] = orientation_probe(goal_policy_path, split, probed, device)
     write_json(output / EVAL_FILE, summary)
     return summary
+
+
+def orientation_probe(goal_policy_path: str, split: str, seeds, device: str = "cpu") -> dict:
+    """The equivariance probe (docs/taxdpd.md) on the start cloths and hangers of these scenes: turning the
+    hangers should turn the goal with them, turning or tilting the cloth alone should not."""
+    from lerobot_taxdpd.maths.equivariance import equivariance_report
+
+    env = ClothHangEnv(split)
+    try:
+        cloths, hangers = [], []
+        for seed in seeds:
+            env.reset(options={"scene": sample_scene(split, seed, env.ranges)})
+            cloths.append(env.cloth_points())
+            hangers.append(env.hanger_points)
+    finally:
+        env.close()
+    with torch.inference_mode():
+        return equivariance_report(_goal_predictor(goal_policy_path, device), np.stack(cloths), np.stack(hangers))
 
 
 def _resolved(flag: str, name_or_path: str | None, resolve: Callable[[str], str]) -> str | None:
@@ -326,6 +356,7 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
         **_training(goal_checkpoint),
         **evaluated,
         **_at_k(summary.get("goal_metrics", {}), config["num_goal_samples"]),
+        **{key: summary[key] for key in ("copy_start_goal_metrics", "equivariance_deg") if key in summary},
         "coverage_threshold": config["goal_threshold_m"],
     }
     save_shipped(goal_predictor, goal_checkpoint, shipped)
