@@ -17,6 +17,9 @@ from torch import Tensor
 
 from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, fit_rigid_transform, rotation_about_z
 
+#: Held-out scenes (the first ones evaluated) the shipped predictors' probe runs on.
+PROBE_SCENES = 8
+
 #: Names of the figures `goal_turn_response` reports, with the answer of a correct predictor.
 IDEAL = {"scene_yaw": "the angle", "object_yaw": 0.0, "object_tilt": 0.0}
 

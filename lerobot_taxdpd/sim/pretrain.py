@@ -153,10 +153,10 @@ def pretrain(
 def orientation_checks(policy, task, trials: list) -> dict:
     """Does the predictor read orientation off the scene? The equivariance probe on the first held-out trials,
     and the trivial baselines (true position; start or mean goal orientation) on all of them."""
-    from lerobot_taxdpd.maths.equivariance import equivariance_report
+    from lerobot_taxdpd.maths.equivariance import PROBE_SCENES, equivariance_report
     from lerobot_taxdpd.sim.predictors import OraclePredictor
 
-    probe = trials[:8]
+    probe = trials[:PROBE_SCENES]
     equivariance = equivariance_report(
         policy,
         np.stack([t.object_points for t in probe]),

@@ -34,8 +34,6 @@ from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 
 #: The report `evaluate` writes into its output folder, beside `figures/`.
 EVAL_FILE = "cloth_hang_eval.json"
-#: Held-out scenes (the first of the evaluated seeds) the equivariance probe runs on.
-PROBE_SCENES = 8
 
 
 @dataclass(frozen=True)
@@ -287,6 +285,8 @@ def evaluate(
     results = tqdm(run_trials(requests, workers), total=len(requests), desc="cloth_hang trials", disable=not progress)
     summary = summarise(list(results), config, workers)
     if goal_policy_path:
+        from lerobot_taxdpd.maths.equivariance import PROBE_SCENES
+
         probed = range(seed, seed + min(trials, PROBE_SCENES))
         summary["equivariance_deg"] = orientation_probe(goal_policy_path, split, probed, device)
     write_json(output / EVAL_FILE, summary)
