@@ -96,9 +96,13 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     trials = summary["per_trial"]
     assert [t["seed"] for t in trials] == [8, 9]
     for trial in trials:
+        assert len(trial["sample_goal_rmse"]) == 3 and 0 <= trial["executed_sample"] < 3
         assert trial["holes"] == 1
         assert sorted(trial["valid_goals"]) == [[0, 0], [0, 1]], "the expert hangs the one hole on either hanger"
         assert trial["ground_truth_pair"] == trial["valid_goals"][0]
+    assert summary["config"]["goal_selection"] == "consensus"  # cloth's default: measured better than the first
+    valid = [t["sample_goal_rmse"][t["executed_sample"]] < 0.5 for t in trials]
+    assert summary["executed_goal_valid"] == np.mean(valid)
     metrics = summary["goal_metrics"]
     assert 0.0 < metrics["precision_rmse"] and 0.0 < metrics["coverage_rmse"]
     assert 0.0 <= metrics["coverage"] <= 1.0 and 0.0 <= metrics["precision"] <= 1.0
@@ -119,6 +123,8 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
     assert shipped.metrics["coverage_rmse"] == metrics["coverage_rmse"]
     assert shipped.metrics["coverage@3"] == metrics["coverage"]  # named as the rigid tasks name it
     assert shipped.metrics["equivariance_deg"] == turns and shipped.metrics["copy_start_goal_metrics"] == copied
+    assert shipped.metrics["executed_goal_valid"] == summary["executed_goal_valid"]
+    assert shipped.metrics["goal_selection"] == "consensus" and "its consensus sample" in shipped.metrics["evaluation"]
     card = (tmp_path / "shipped" / "cloth_hang" / "README.md").read_text()
     assert "- Orientation: turning the scene by 20 deg" in card and "the start cloth moved to the goal's" in card
     # The executor ships beside it: the EMA weights it acts with, as its only weights, with the same results.

@@ -77,6 +77,27 @@ def test_errors_are_measured_as_the_error_that_was_made():
     assert "coverage@2" not in shifted  # one socket: no coverage to report
 
 
+class FirstSampleOff(OraclePredictor):
+    """The ground truth, except that the first of the K samples is 3 cm off: a blind one-shot pick fails."""
+
+    def sample_goals(self, object_points, scene_points, num_samples):
+        samples = super().sample_goals(object_points, scene_points, num_samples)
+        samples[:, 0] += torch.tensor([0.03, 0.0, 0.0], dtype=samples.dtype)
+        return samples
+
+
+def test_consensus_executes_the_sample_the_others_agree_with():
+    trials = _trials("insert_waterproof", 2)
+    first = evaluate(FirstSampleOff(trials), trials, 4, progress=False)
+    assert first["success"]["success_rate"] == 0.0 and first["goal_selection"] == "first"
+    assert first["translation_error_mm"]["median"] == pytest.approx(30.0, abs=0.01)
+    voted = evaluate(FirstSampleOff(trials), trials, 4, goal_selection="consensus", progress=False)
+    assert voted["success"]["success_rate"] == 1.0 and voted["goal_selection"] == "consensus"
+    assert [r["executed_sample"] for r in voted["per_trial"]] == [1, 1]  # three agree; the earliest of them
+    with pytest.raises(ValueError, match="goal selection: expected one of"):
+        evaluate(FirstSampleOff(trials), trials, 4, goal_selection="best", progress=False)
+
+
 def test_the_harness_rejects_what_is_not_a_goal_predictor():
     trials = _trials("insert_ssd", 1)
 
@@ -136,6 +157,8 @@ def test_command_line_eval_writes_the_report(tmp_path):
         "2",
         "--num-samples",
         "2",
+        "--goal-selection",
+        "consensus",
         "--figures",
         "1",
         "--output",
@@ -144,6 +167,7 @@ def test_command_line_eval_writes_the_report(tmp_path):
     assert "insert_dsub25: success 100.0%" in result.stdout
     report = json.loads((tmp_path / "insert_dsub25_eval.json").read_text())
     assert report["predictor"] == "oracle" and report["split"] == "test" and report["trials"] == 2
+    assert report["goal_selection"] == "consensus"
     assert (tmp_path / "figures" / "insert_dsub25_seed0_samples.png").exists()
 
 

@@ -1,7 +1,8 @@
 """The evaluation harness: run a goal predictor on held-out trials and report it under DESIGN's names.
 
-For every trial the predictor samples K goal clouds; the first is executed (one shot, no reranking, as
-in the paper) after RANSAC-SVD turns it into a pose. Errors are measured against the valid goal nearest
+For every trial the predictor samples K goal clouds; one is executed after RANSAC-SVD turns it into a pose:
+the first (one shot, no reranking, as in the paper) or, with `goal_selection="consensus"`, the sample the
+others agree with most (`maths.selection`). Errors are measured against the valid goal nearest
 to the executed sample (the demonstrated goal when the task has one mode and the object no symmetry),
 so a sample that solves the scene another valid way is not penalised. Multi-modal tasks also get
 coverage@K and precision@K, counting each mode (peg, slot, support, socket) once.
@@ -32,6 +33,7 @@ from lerobot_taxdpd.maths.metrics import (
     success_summary,
     transform_errors,
 )
+from lerobot_taxdpd.maths.selection import check_goal_selection, executed_first
 from lerobot_taxdpd.reports.benchmarking import machine_info
 from lerobot_taxdpd.reports.plots import plot_goal_samples, plot_weight_map
 from lerobot_taxdpd.sim.predictors import GoalPredictor, as_goal_predictor
@@ -102,8 +104,8 @@ def score_trial(trial: Trial, samples: np.ndarray, transform: np.ndarray) -> dic
 
 @dataclass(frozen=True)
 class TrialRun:
-    """One trial as the harness runs it: the K samples, what executing the first did, and the trial's record
-    of the report."""
+    """One trial as the harness runs it: the K samples (the executed one first), what executing it did, and the
+    trial's record of the report."""
 
     samples: np.ndarray  # (K, N_O, 3) float64, metres
     outcome: Outcome
@@ -111,11 +113,13 @@ class TrialRun:
     predict_seconds: float
 
 
-def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int) -> TrialRun:
-    """Sample K goals (from the trial's seed), fit a pose to the first by RANSAC-SVD, execute and score it."""
+def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int, goal_selection: str = "first") -> TrialRun:
+    """Sample K goals (from the trial's seed), pick one by `goal_selection`, fit a pose to it by RANSAC-SVD,
+    execute and score it."""
     tick = time.perf_counter()
     samples = sample_trial_goals(predictor, trial, num_samples)
     predict_seconds = time.perf_counter() - tick
+    samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold)
     transform, _ = estimate_rigid_transform(
         trial.object_points.astype(np.float64), samples[0], generator=torch.Generator().manual_seed(trial.seed)
     )
@@ -125,6 +129,7 @@ def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int) -> Trial
         "success": outcome.success,
         "failure": outcome.reason,
         "reached_goal": outcome.reached_goal,
+        "executed_sample": executed,
         **score_trial(trial, samples, transform),
     }
     return TrialRun(samples, outcome, record, predict_seconds)
@@ -135,6 +140,7 @@ def evaluate(
     trials: Iterable[Trial],
     num_samples: int,
     *,
+    goal_selection: str = "first",
     figures_dir: Path | None = None,
     num_figures: int = 3,
     progress: bool = True,
@@ -143,6 +149,7 @@ def evaluate(
     """Run every trial and return the report (see module docstring); PNGs go to `figures_dir`."""
     if num_samples < 1:
         raise ValueError(f"num_samples: must be at least 1, got {num_samples}")
+    check_goal_selection(goal_selection)
     predictor = as_goal_predictor(predictor)
     if figures_dir is not None:
         figures_dir = Path(figures_dir)
@@ -152,14 +159,15 @@ def evaluate(
     for index, trial in enumerate(tqdm(trials, total=total, desc="trials", disable=not progress)):
         task = trial.task
         tick = time.perf_counter()
-        run = run_trial(predictor, trial, num_samples)
+        run = run_trial(predictor, trial, num_samples, goal_selection)
         record = {**run.record, "predict_seconds": run.predict_seconds, "seconds": time.perf_counter() - tick}
         records.append(record)
         if figures_dir is not None and index < num_figures:
             figures += _draw(predictor, trial, run.samples, run.outcome.success, figures_dir)
     if not records:
         raise ValueError("no trials to evaluate")
-    return _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)
+    report = _report(task, trial.split, records, num_samples, figures, time.perf_counter() - started)
+    return {**report, "goal_selection": goal_selection}
 
 
 def _draw(predictor: GoalPredictor, trial: Trial, samples: np.ndarray, success: bool, folder: Path) -> list[str]:
@@ -205,7 +213,7 @@ def _report(task, split: str, records: list[dict], num_samples: int, figures: li
         "trials": len(records),
         "num_samples": num_samples,
         "success": success_summary(successes, len(records)),
-        "errors_against": "the valid goal nearest to the executed (first) sample",
+        "errors_against": "the valid goal nearest to the executed sample",
         "translation_error_mm": _summary([r["translation_error_mm"] for r in records]),
         "rotation_error_deg": _summary([r["rotation_error_deg"] for r in records]),
         "rmse_mm": _summary([r["rmse_mm"] for r in records]),

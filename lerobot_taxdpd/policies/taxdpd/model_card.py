@@ -48,6 +48,7 @@ _MEDIANS = {
 _VALUES = {
     "coverage_rmse": ("coverage_rmse", "coverage RMSE"),
     "precision_rmse": ("precision_rmse", "precision RMSE"),
+    "executed_goal_valid": ("executed_goal_valid", "fraction of scenes whose executed goal sample is a valid goal"),
 }
 
 
@@ -172,7 +173,9 @@ def _limitations(config, metrics: dict) -> list[str]:
     lines = ["## Limitations", ""]
     radius = config.object_scale / config.point_scale if config.point_scale else None
     if metrics.get("success"):
-        executed = "executed by gc_dp3" if "success_with_ground_truth_goals" in metrics else "first sample executed"
+        executed = f"{metrics.get('goal_selection', 'first')} sample executed"
+        if "success_with_ground_truth_goals" in metrics:
+            executed += " by gc_dp3"
         lines.append(
             f"- Measured in simulation only, on held-out geometry (see Training and evaluation): success "
             f"{_rate(metrics['success'])}, {executed}."
