@@ -29,8 +29,8 @@ def consensus_index(samples: np.ndarray, radius: float) -> int:
         raise ValueError(f"radius: must be positive, got {radius}")
     rmse = pairwise_rmse(samples, samples)
     neighbours = (rmse < radius).sum(1) - 1
-    mean_rmse = rmse.sum(1) / max(len(samples) - 1, 1)
-    return int(np.lexsort((np.arange(len(samples)), mean_rmse, -neighbours))[0])
+    total_rmse = rmse.sum(1)  # orders the samples as their mean RMSE to the others does
+    return int(np.lexsort((np.arange(len(samples)), total_rmse, -neighbours))[0])
 
 
 def check_goal_selection(selection: str) -> str:

@@ -25,7 +25,12 @@ import torch
 from tqdm import tqdm
 
 from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
-from lerobot_taxdpd.maths.metrics import coverage_precision, pairwise_rmse, success_summary
+from lerobot_taxdpd.maths.metrics import (
+    coverage_precision,
+    coverage_precision_from_rmse,
+    pairwise_rmse,
+    success_summary,
+)
 from lerobot_taxdpd.maths.selection import check_goal_selection, executed_first
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.reports.plots import plot_goal_samples
@@ -126,10 +131,11 @@ def run_trial(request: TrialRequest) -> dict:
                 request.seed,
                 request.device,
             )
-            result["goal_metrics"] = coverage_precision(predicted, np.stack(goals), request.goal_threshold)
+            rmse = pairwise_rmse(predicted, np.stack(goals))
+            result["goal_metrics"] = coverage_precision_from_rmse(rmse, request.goal_threshold)
             # Each sample's RMSE to its nearest valid goal, in the order drawn: which rule would have picked a
             # valid goal can be read off any report.
-            result["sample_goal_rmse"] = pairwise_rmse(predicted, np.stack(goals)).min(1).tolist()
+            result["sample_goal_rmse"] = rmse.min(1).tolist()
             predicted, result["executed_sample"] = executed_first(
                 predicted, request.goal_selection, request.goal_threshold
             )
