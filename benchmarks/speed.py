@@ -10,6 +10,10 @@ config are printed beside the figures and written to JSON.
     python benchmarks/speed.py                                  # results/speed.json
     python benchmarks/speed.py --models cpu --repeats 7 --threads 2
     python benchmarks/speed.py --models cpu --set max_neighbors=16 use_amp=true   # a variant
+    python benchmarks/speed.py --models cpu --dataset data/mug_easyrack          # lerobot-train on real demos
+
+The `lerobot-train` figure is taken on a small synthetic dataset at the model's point counts unless
+`--dataset` names a task's demonstrations (clouds as recorded, e.g. 512 points, reduced in every step).
 """
 
 from __future__ import annotations
@@ -167,16 +171,18 @@ def policy_figures(fields: dict, args) -> dict:
 
 
 def lerobot_train_figures(fields: dict, args) -> dict:
-    """Steps of `lerobot-train` on a slot dataset at the model's point counts; update/data times from its log."""
+    """Steps of `lerobot-train` on `--dataset`, or on a slot dataset at the model's point counts; update and
+    data times from its log."""
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "data"
-        write_slot_dataset(
-            root,
-            episodes=32,
-            object_cloud_size=fields["num_object_points"],
-            scene_cloud_size=fields["num_scene_points"],
-            seed=0,
-        )
+        root = Path(args.dataset).resolve() if args.dataset else Path(tmp) / "data"
+        if not args.dataset:
+            write_slot_dataset(
+                root,
+                episodes=32,
+                object_cloud_size=fields["num_object_points"],
+                scene_cloud_size=fields["num_scene_points"],
+                seed=0,
+            )
         steps = args.train_steps
         command = [
             sys.executable,
@@ -210,6 +216,7 @@ def lerobot_train_figures(fields: dict, args) -> dict:
         "steps_per_s": 1.0 / (update_s + data_s),
         "wall_s_with_startup": wall,
         "num_workers": args.num_workers,
+        "dataset": str(args.dataset or "synthetic two-slot demos at the model's point counts"),
     }
 
 
@@ -232,9 +239,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--train-steps", type=int, default=40, help="lerobot-train steps timed (0: skip)")
     parser.add_argument("--num-workers", type=int, default=0, help="lerobot-train data workers")
+    parser.add_argument(
+        "--dataset", type=Path, default=None, help="a task's demonstrations for the lerobot-train figure"
+    )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--output", default="results/speed.json")
     args = parser.parse_args()
+    if args.dataset and not (args.dataset / "meta" / "info.json").is_file():
+        parser.error(f"--dataset {args.dataset}: not a LeRobot dataset (no meta/info.json)")
     torch.set_num_threads(args.threads)
     overrides = parse_overrides(args.set)
 
@@ -270,7 +282,8 @@ def main() -> None:
             t = row["lerobot_train"]
             print(
                 f"  lerobot-train: {t['step_s']:.3f} s/step ({t['steps_per_s']:.2f} steps/s; "
-                f"update {t['update_s']:.3f} s, data {t['data_s']:.3f} s, {t['num_workers']} workers)"
+                f"update {t['update_s']:.3f} s, data {t['data_s']:.3f} s, {t['num_workers']} workers; "
+                f"{t['dataset']})"
             )
         print(
             f"  sampling: K=1 {p['sampling']['K=1']['latency_s']:.3f} s, "
