@@ -66,11 +66,18 @@ def timed(run: Callable[[], object], repeats: int, warmup: int = 1) -> tuple[flo
     return statistics.median(times), times
 
 
+def _path_as_text(value):
+    """JSON for the paths that argparse namespaces carry; anything else unknown is still an error."""
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def write_json(path: str | Path, payload: dict) -> Path:
-    """Write `payload` as indented JSON; a crash never leaves a half-written file behind."""
+    """Write `payload` as indented JSON (paths as text); a crash never leaves a half-written file behind."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
-    partial.write_text(json.dumps(payload, indent=2))
+    partial.write_text(json.dumps(payload, indent=2, default=_path_as_text))
     os.replace(partial, path)
     return path
