@@ -174,8 +174,10 @@ def lerobot_train_figures(fields: dict, args) -> dict:
     """Steps of `lerobot-train` on `--dataset`, or on a slot dataset at the model's point counts; update and
     data times from its log."""
     with tempfile.TemporaryDirectory() as tmp:
-        root = args.dataset.resolve() if args.dataset else Path(tmp) / "data"
-        if not args.dataset:
+        if args.dataset:
+            root = args.dataset.resolve()
+        else:
+            root = Path(tmp) / "data"
             write_slot_dataset(
                 root,
                 episodes=32,

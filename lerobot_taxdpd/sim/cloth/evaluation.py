@@ -131,7 +131,8 @@ def run_trial(request: TrialRequest) -> dict:
                 request.seed,
                 request.device,
             )
-            rmse = pairwise_rmse(predicted, np.stack(goals))
+            valid = np.stack(goals)
+            rmse = pairwise_rmse(predicted, valid)
             result["goal_metrics"] = coverage_precision_from_rmse(rmse, request.goal_threshold)
             # Each sample's RMSE to its nearest valid goal, in the order drawn: which rule would have picked a
             # valid goal can be read off any report.
@@ -143,7 +144,7 @@ def run_trial(request: TrialRequest) -> dict:
             # centroid of the ground-truth goal.
             copied = start_cloud - start_cloud.mean(0) + goals[0].mean(0)
             result["copy_start_goal_metrics"] = coverage_precision(
-                copied[None], np.stack(goals), request.goal_threshold
+                copied[None], valid, request.goal_threshold
             )
             if executor is not None:
                 torch.manual_seed(request.seed)
