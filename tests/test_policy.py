@@ -18,6 +18,7 @@ from lerobot_taxdpd.apps.synthetic import write_slot_dataset
 from lerobot_taxdpd.data.scaling import SCALE_FILE
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import PointCloudError
+from lerobot_taxdpd.sim.pretrain import save_shipped
 
 N_O, N_S = 32, 64
 
@@ -206,6 +207,39 @@ def test_save_and_load_round_trip_keeps_weights_scale_metrics_and_card(tmp_path)
     assert "success 93% (95% CI 86%-97%, 100 trials)" in card
     pushed_card = str(loaded.generate_model_card("me/slots", "taxdpd", None, ["extra"]))
     assert "datasets:" in pushed_card and "me/slots" in pushed_card and "translation_error_mm" in pushed_card
+
+
+def test_with_ema_goals_come_from_the_averaged_weights_which_save_resume_and_ship(tmp_path):
+    policy = tiny_policy(use_ema=True)
+    trained = {id(p) for p in policy.get_optim_params()}
+    assert trained == {id(p) for p in policy.model.parameters()}, "the average is outside the optimiser"
+    with torch.no_grad():
+        for p in policy.model.parameters():
+            p.add_(0.05)
+    policy.update()  # first step: decay 0, the average takes the trained weights
+    with torch.no_grad():
+        for p in policy.model.parameters():
+            p.add_(0.05)
+    for _ in range(3):
+        policy.update()
+    obj, scene = clouds()
+    seeded = dict(generator=torch.Generator().manual_seed(2))
+    goals = policy.sample_goals(obj, scene, 2, **seeded)
+    raw = tiny_policy()
+    raw.model.load_state_dict(policy.model.state_dict())
+    assert not torch.allclose(raw.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(2)), goals)
+    plain = policy.without_ema()
+    assert not plain.config.use_ema and not hasattr(plain, "ema_model")
+    assert torch.equal(plain.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(2)), goals)
+    policy.save_pretrained(tmp_path / "checkpoint")  # lerobot-train's checkpoint: the average resumes with it
+    resumed = TaxDPDPolicy.from_pretrained(tmp_path / "checkpoint")
+    assert int(resumed.ema_step) == 4
+    assert torch.equal(resumed.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(2)), goals)
+    save_shipped(policy, tmp_path / "checkpoint", tmp_path / "shipped")
+    shipped = TaxDPDPolicy.from_pretrained(tmp_path / "shipped")
+    assert not shipped.config.use_ema and not any(k.startswith("ema") for k in shipped.state_dict())
+    fp16 = shipped.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(2))
+    assert torch.allclose(fp16, goals, atol=1e-2), "what ships samples as the averaged weights do (to fp16)"
 
 
 def test_hub_id_loads_offline_from_the_huggingface_cache(tmp_path, hf_home):

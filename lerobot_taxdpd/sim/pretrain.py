@@ -44,7 +44,9 @@ def _relative(path: Path) -> Path:
 def save_shipped(policy, checkpoint: Path, destination: Path) -> None:
     """Save a checkpoint the way the package ships it: half-precision weights (half the size; fp16 keeps
     11 mantissa bits, far below the placement errors), config, card, metrics and the saved processors.
-    The config forgets the checkpoint it was loaded from (a path on the training machine)."""
+    The config forgets the checkpoint it was loaded from (a path on the training machine); a policy that
+    keeps an average of its weights ships the average alone, as the weights it samples from."""
+    policy = policy.without_ema()
     policy.config.pretrained_path = None
     policy.save_pretrained(destination)
     weights = destination / "model.safetensors"

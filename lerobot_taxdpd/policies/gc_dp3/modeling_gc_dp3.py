@@ -9,7 +9,6 @@ prediction, few steps). Only the goal-conditioned point encoder and the policy a
 
 from __future__ import annotations
 
-import copy
 from collections import deque
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
 from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
+from lerobot_taxdpd.policies.ema import EmaWeights
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
@@ -134,7 +134,7 @@ class GcDp3Model(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------ the policy
-class GcDp3Policy(PreTrainedPolicy):
+class GcDp3Policy(EmaWeights, PreTrainedPolicy):
     """LeRobot policy around `GcDp3Model`: observation queues, action chunking and the optional EMA."""
 
     config_class = GcDp3Config
@@ -146,19 +146,10 @@ class GcDp3Policy(PreTrainedPolicy):
         config.derive_cloud_frame(dataset_stats)
         self.config = config
         self.model = GcDp3Model(config)
-        if config.use_ema:
-            self.ema_model = copy.deepcopy(self.model).requires_grad_(False)
-            self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._init_ema()
         self._queues: dict[str, deque] = {}
         self.metrics: dict = {}  # measured results saved beside the weights (metrics.json), e.g. when shipped
         self.reset()
-
-    @property
-    def inference_model(self) -> GcDp3Model:
-        return self.ema_model if self.config.use_ema else self.model
-
-    def get_optim_params(self):
-        return self.model.parameters()
 
     def _save_pretrained(self, save_directory: Path) -> None:
         super()._save_pretrained(save_directory)
@@ -174,18 +165,6 @@ class GcDp3Policy(PreTrainedPolicy):
 
     def generate_model_card(self, dataset_repo_id, model_type, license, tags) -> ModelCard:
         return render_model_card(self.config, self.metrics, dataset_repo_id, license, tags)
-
-    def without_ema(self) -> GcDp3Policy:
-        """The same policy whose trained weights are the EMA weights it acts with, without the EMA copy:
-        half the size to ship, the same actions."""
-        if not self.config.use_ema:
-            return self
-        config = copy.deepcopy(self.config)
-        config.use_ema = False
-        plain = GcDp3Policy(config)
-        plain.model.load_state_dict(self.ema_model.state_dict())
-        plain.metrics = dict(self.metrics)
-        return plain
 
     def reset(self) -> None:
         steps = self.config.n_obs_steps
@@ -210,17 +189,6 @@ class GcDp3Policy(PreTrainedPolicy):
         else:
             self._queue_observation(batch)
         return self._queues[ACTION_KEY].popleft()
-
-    def update(self) -> None:
-        """After each optimiser step: move the EMA weights towards the trained ones (DP3's warm-up decay)."""
-        if not self.config.use_ema:
-            return
-        step = int(self.ema_step)
-        decay = min(self.config.ema_max_decay, max(0.0, 1.0 - (1.0 + step) ** -self.config.ema_power))
-        with torch.no_grad():
-            for ema, param in zip(self.ema_model.parameters(), self.model.parameters(), strict=True):
-                ema.lerp_(param, 1.0 - decay)
-        self.ema_step += 1
 
     @property
     def _observation_keys(self) -> tuple[str, ...]:

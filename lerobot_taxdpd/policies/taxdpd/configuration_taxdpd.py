@@ -126,6 +126,11 @@ class TaxDPDConfig(PreTrainedConfig):
     ransac_threshold: float | None = None  # metres; default 5 percent of the object's RMS radius
     ransac_hypotheses: int = 256
 
+    # ---- exponential moving average of the weights, sampled from when on (DP3's warm-up decay)
+    use_ema: bool = False
+    ema_power: float = 0.75
+    ema_max_decay: float = 0.9999
+
     # ---- optimisation (paper: AdamW 1e-4, wd 1e-5, warmup 100, cosine, clip 1.0)
     optimizer_lr: float = 1e-4
     optimizer_betas: tuple[float, float] = (0.9, 0.999)

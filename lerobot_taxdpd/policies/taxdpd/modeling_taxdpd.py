@@ -30,6 +30,7 @@ from lerobot_taxdpd.maths.geometry import (
     lift_point_motion,
     nearest_indices,
 )
+from lerobot_taxdpd.policies.ema import EmaWeights
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 from lerobot_taxdpd.policies.taxdpd.augmentation import (
     ball_cut,
@@ -146,7 +147,7 @@ class ModelFrame:
         return points.float() / self.scale + origin
 
 
-class TaxDPDPolicy(PreTrainedPolicy):
+class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
     """Goal predictor for object placement: samples where every object point must go.
 
     Public API (metres, caller's frame): `sample_goals`, `predict_poses`, `placement_distribution`.
@@ -162,13 +163,11 @@ class TaxDPDPolicy(PreTrainedPolicy):
         if config.point_scale is None and dataset_meta is not None:
             config.point_scale = estimate_point_scale(dataset_meta.root, config.object_scale)
         self.model = TaxDPDModel(config)
+        self._init_ema()
         self.metrics: dict = {}
         self._warned_scale = False
 
     # ------------------------------------------------------------------------------------ LeRobot hooks
-    def get_optim_params(self):
-        return self.parameters()
-
     def reset(self) -> None:
         """Nothing to reset: each call predicts a goal from the current observation alone."""
 
@@ -228,7 +227,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
-            goals = self.model.sample(
+            goals = self.inference_model.sample(
                 frame.to_model(model_object),
                 frame.to_model(model_scene),
                 num_samples,
@@ -265,7 +264,7 @@ class TaxDPDPolicy(PreTrainedPolicy):
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
-            weights, means = self.model.placement_distribution(
+            weights, means = self.inference_model.placement_distribution(
                 frame.to_model(model_object), frame.to_model(model_scene)
             )
         weights, means = weights.float(), frame.to_metres(means)
