@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
+import torch
 from safetensors.torch import load_file
 
 from conftest import BIN
@@ -51,6 +52,9 @@ def test_seeded_runs_of_the_cpu_recipe_give_the_same_weights(cli, slot_dataset, 
     assert first.keys() == second.keys()
     difference = max((first[k].double() - second[k].double()).abs().max().item() for k in first)
     assert difference <= 1e-6, f"seeded runs differ by {difference}"
+    assert int(first["ema_step"]) == 3, "lerobot-train moves the recipe's weight average after every step"
+    moved = [k for k in first if k.startswith("ema_model.") and not torch.equal(first[k], first[k[len("ema_") :]])]
+    assert moved, "the average differs from the trained weights after the first step"
 
 
 @pytest.mark.slow
