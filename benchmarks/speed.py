@@ -147,6 +147,7 @@ def policy_figures(fields: dict, args) -> dict:
         with record_function("optimizer"):
             torch.nn.utils.clip_grad_norm_(policy.parameters(), config.optimizer_grad_clip_norm)
             optimizer.step()
+            policy.update()  # the weight average, when the recipe keeps one, as lerobot-train calls it
 
     step_s, step_times = timed(step, args.repeats)
     gflop = flops(step) / args.batch_size / 1e9
