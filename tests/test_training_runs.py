@@ -34,7 +34,7 @@ def _weights(run_dir):
 
 
 def test_seeded_runs_of_the_cpu_recipe_give_the_same_weights(cli, slot_dataset, tmp_path):
-    """Same seed, same weights, with the recipe's own kernels (bf16 autocast, fused attention) and a data worker."""
+    """Same seed, same weights, with the recipe's own settings: its fp32 kernels and its average of the weights."""
     for name in ("a", "b"):
         cli(
             "lerobot-train",
