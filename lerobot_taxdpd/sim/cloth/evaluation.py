@@ -390,7 +390,7 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     }
     save_shipped(goal_predictor, goal_checkpoint, shipped)
     executor_checkpoint = Path(config["policy_path"])
-    executor = GcDp3Policy.from_pretrained(executor_checkpoint).without_ema()
+    executor = GcDp3Policy.from_pretrained(executor_checkpoint)  # save_shipped keeps its average alone
     executor.metrics = {**_training(executor_checkpoint), **evaluated}
     save_shipped(executor, executor_checkpoint, shipped / EXECUTOR_DIR)
     return shipped
