@@ -17,10 +17,15 @@ def _uniform(batch: int, like: Tensor, generator: torch.Generator | None) -> Ten
 
 
 def random_z_rotation(
-    object_points: Tensor, scene_points: Tensor, goal_points: Tensor, generator: torch.Generator | None = None
+    object_points: Tensor,
+    scene_points: Tensor,
+    goal_points: Tensor,
+    max_angle_deg: float = 180.0,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """Rotate all three clouds by one angle ~ U[0, 2 pi) about the vertical axis through the scene centroid."""
-    angle = _uniform(object_points.shape[0], object_points, generator) * (2 * math.pi)
+    """Rotate all three clouds by one angle ~ U(+-max_angle) about the vertical axis through the scene centroid
+    (180 deg: the whole circle, as the paper does)."""
+    angle = (2 * _uniform(object_points.shape[0], object_points, generator) - 1) * math.radians(max_angle_deg)
     rotation = rotation_about_z(angle).transpose(-1, -2)
     pivot = scene_points.mean(dim=1, keepdim=True)
     return tuple((x - pivot) @ rotation + pivot for x in (object_points, scene_points, goal_points))

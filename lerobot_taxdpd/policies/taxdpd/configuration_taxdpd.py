@@ -113,7 +113,11 @@ class TaxDPDConfig(PreTrainedConfig):
     num_goal_samples: int = 1  # goals sampled per call of `select_action` (the first is returned)
 
     # ---- training augmentation
+    # Object, scene and goal turned together about the vertical by U(+-z_rotation_range) degrees: 180 is the
+    # paper's whole circle; a task whose scenes keep a rough heading in the robot's frame (a board facing the
+    # robot) learns its fine orientation faster from a range that only covers that variation.
     z_rotation_augmentation: bool = True
+    z_rotation_range: float = 180.0
     # The object alone turned about its centroid by a random yaw in +-start_yaw_range and a tilt about a
     # random horizontal axis up to start_tilt_range (degrees), the goal kept: the start orientation then says
     # nothing about the goal's, so the network must read it off the object's shape and the scene.
@@ -153,6 +157,8 @@ class TaxDPDConfig(PreTrainedConfig):
                 "rotation_noise='signal': needs prediction_type='sample' (the target is the unturned goal); "
                 "with another target use rotation_noise='paper' or use_rotation_noise=false"
             )
+        if not 0.0 <= self.z_rotation_range <= 180.0:
+            raise ValueError(f"z_rotation_range: degrees in [0, 180], got {self.z_rotation_range}")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.prediction_type not in PREDICTION_TYPES:

@@ -365,7 +365,9 @@ class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
     ) -> tuple[Tensor, Tensor, Tensor]:
         config = self.config
         if config.z_rotation_augmentation:
-            object_points, scene_points, goal_points = random_z_rotation(object_points, scene_points, goal_points)
+            object_points, scene_points, goal_points = random_z_rotation(
+                object_points, scene_points, goal_points, config.z_rotation_range
+            )
         if config.start_yaw_range > 0 or config.start_tilt_range > 0:
             object_points = random_start_pose(object_points, config.start_yaw_range, config.start_tilt_range)
         if config.object_occlusion_prob > 0:
