@@ -71,9 +71,11 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     # A finished cell is reused only by its own command, not by a run with other flags.
     other = run(
         "-m", "lerobot_taxdpd.sim", "pretrain", "--task", "book_shelf", "--config", tmp_path / "tiny.json",
-        "--steps", "2", "--dataset", task / "data", "--output", task / "no_gmm", "--policy.use_gmm=true",
+        "--steps", "2", "--episodes", "4", "--dataset", task / "data", "--output", task / "no_gmm",
+        "--policy.use_gmm=true",
     )
-    assert other.returncode == 1 and "trained by another command" in other.stderr
+    assert "[1/4] reusing the 4 book_shelf demonstrations" in other.stdout  # the same options: said, not silent
+    assert other.returncode == 1 and "trained by another command" in other.stderr and "--overwrite" in other.stderr
     # --report-only tabulates what has finished and starts nothing.
     result = run(*args[:6], "mlp_encoder", *args[6:], "--report-only")
     assert result.returncode == 0, result.stderr[-4000:]

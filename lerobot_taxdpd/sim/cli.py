@@ -173,6 +173,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="demonstrations folder, generated if missing (default: <output>/data)",
     )
+    pretrain.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="make new demonstrations and retrain, replacing those in place (default: reuse them only when made "
+        "with the same options and training command, refuse otherwise)",
+    )
     add_threads_argument(pretrain)
     return parser
 
@@ -200,6 +206,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         ship=args.ship,
         dataset=args.dataset,
         overrides=overrides,
+        overwrite=args.overwrite,
     )
     return 0
 

@@ -53,12 +53,7 @@ def generate_dataset(
         ),
         hub_license="apache-2.0",
         tags=["pybullet", "simulation", task.name],
-        details={
-            "task": task.name,
-            "geometry split": split,
-            "scene seeds": f"{seed}..{seed + episodes - 1}",
-            "frames per episode": str(frames_per_episode),
-        },
+        details=demonstration_details(task.name, split, seed, episodes, frames_per_episode),
     )
     features = goal_prediction_features(num_object, num_scene, with_transform=True)
     with DatasetWriter(repo_id, root, features, fps=GOAL_DATASET_FPS, card=card, overwrite=overwrite) as writer:
@@ -76,3 +71,13 @@ def generate_dataset(
             ]
             writer.add_episode(frames, task=task.description)
     return Path(root)
+
+
+def demonstration_details(task: str, split: str, seed: int, episodes: int, frames_per_episode: int) -> dict:
+    """What a dataset's card records about its demonstrations: what a rerun compares before reusing them."""
+    return {
+        "task": task,
+        "geometry split": split,
+        "scene seeds": f"{seed}..{seed + episodes - 1}",
+        "frames per episode": str(frames_per_episode),
+    }

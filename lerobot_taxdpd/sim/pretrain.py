@@ -6,23 +6,26 @@
 Steps: scripted demonstrations of the training geometry (`generate`), `lerobot-train` with the shipped CPU
 recipe `taxdpd_cpu` (or any recipe name or config file given), the evaluation harness on held-out geometry,
 then the checkpoint with its measured metrics (task, training command and budget, held-out success and
-errors) saved as a shipped predictor when `--ship` names a folder. Each step that already finished is
-reused on a rerun; a checkpoint is reused only by the training command that made it.
+errors) saved as a shipped predictor when `--ship` names a folder. A rerun reuses the demonstrations and
+the checkpoint in place, and says so, only when they were made with the same options and training command;
+otherwise it refuses, and `--overwrite` makes them afresh.
 """
 
 from __future__ import annotations
 
 import json
 import shlex
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from safetensors.torch import load_file, save_file
 
-from lerobot_taxdpd.recipes import recipe_path, run, train_command
+from lerobot_taxdpd.data.dataset_writer import read_card_info
+from lerobot_taxdpd.recipes import RECIPE_DIR, recipe_path, run, train_command
 from lerobot_taxdpd.reports.benchmarking import write_json
-from lerobot_taxdpd.sim.generate import generate_dataset
+from lerobot_taxdpd.sim.generate import demonstration_details, generate_dataset
 from lerobot_taxdpd.sim.harness import evaluate
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
@@ -72,13 +75,15 @@ def pretrain(
     ship: Path | None,
     dataset: Path | None = None,
     overrides: Sequence[str] = (),
+    overwrite: bool = False,
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
     `recipe` is a shipped recipe name or a config file; the task's own `training_flags` follow it, then
     `overrides`, extra lerobot-train flags (`--policy.<field>=<value>`, `--seed=<n>`) that win over both.
     `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
-    demonstrations; it is generated only if it does not exist yet.
+    demonstrations; it is generated only if it does not exist yet. What a rerun finds in place is reused
+    only when made with the same options, and refused otherwise; `overwrite` makes both afresh.
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
@@ -87,33 +92,12 @@ def pretrain(
     output = Path(output)
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
-    info = dataset / "meta" / "info.json"
-    if info.is_file():  # an existing dataset: report what it holds, not what a new one would
-        episodes = json.loads(info.read_text())["total_episodes"]
-    generate_command = f"python -m lerobot_taxdpd.sim generate --task {task.name} --episodes {episodes} --split train"
-    if not info.is_file():
-        print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
-        generate_dataset(
-            task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=generate_command
-        )
     flags = training_flags(task, steps, overrides)
+    portable_generate, portable_train = portable_commands(task, episodes, config_path, flags)
+    prepare_demonstrations(task, dataset, repo_id, episodes, portable_generate, overwrite=overwrite)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
-    recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with
-    timing = output / TRAIN_SECONDS_FILE
-    if (checkpoint / "model.safetensors").is_file():
-        if recorded.is_file() and recorded.read_text() != shlex.join(command):
-            raise ValueError(
-                f"--output {output}: holds a checkpoint trained by another command ({recorded.read_text()}); "
-                "choose another --output or delete that folder"
-            )
-        train_seconds = float(timing.read_text()) if timing.is_file() else None
-    else:
-        print(f"[2/4] {shlex.join(command)}", flush=True)
-        output.mkdir(parents=True, exist_ok=True)
-        recorded.write_text(shlex.join(command))
-        train_seconds = run(command)
-        timing.write_text(f"{train_seconds}\n")
+    train_seconds = train_once(command, output, run_dir, overwrite=overwrite)
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
     if destination is not None:  # evaluate exactly what ships (half-precision weights)
@@ -129,8 +113,8 @@ def pretrain(
     metrics = {
         "task": task.name,
         "description": task.description,
-        "data": f"{episodes} scripted demonstrations of the training geometry ({generate_command})",
-        "training_command": shlex.join(command),
+        "data": f"{episodes} scripted demonstrations of the training geometry ({portable_generate})",
+        "training_command": portable_train,
         "training_steps": train_config["steps"],
         "batch_size": train_config["batch_size"],
         "train_seconds": train_seconds,
@@ -150,6 +134,74 @@ def pretrain(
         print(f"shipped as {destination}")
     (output / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def portable_commands(task, episodes: int, config_path: Path, flags: Sequence[str]) -> tuple[str, str]:
+    """The generate and train commands as metrics and cards record them: runnable on any machine, one after
+    the other (folders under the working directory, a shipped recipe by name), not the folders of the
+    machine that trained."""
+    data, repo_id = f"data/{task.name}", f"local/{task.name}"
+    generate = shlex.join(
+        ["python", "-m", "lerobot_taxdpd.sim", "generate", "--task", task.name, "--episodes", str(episodes),
+         "--split", "train", "--repo-id", repo_id, "--root", data]
+    )  # fmt: skip
+    train = shlex.join(train_command(Path(data), repo_id, Path("outputs/train") / task.name, flags=flags))
+    recipe = shlex.quote(str(_relative(config_path)))
+    if config_path.resolve().parent == RECIPE_DIR.resolve():  # found on any install by its name
+        recipe = f"$(python -m lerobot_taxdpd.recipes path {config_path.stem})"
+    return generate, train.replace("lerobot-train ", f"lerobot-train --config_path={recipe} ", 1)
+
+
+def prepare_demonstrations(task, dataset: Path, repo_id: str, episodes: int, command: str, *, overwrite: bool) -> None:
+    """Generate the training demonstrations, or reuse those in place when made with the same options: a
+    rerun with another `--episodes` must not train on the old ones without a word."""
+    if (dataset / "meta" / "info.json").is_file() and not overwrite:
+        differences = _differences(dataset, demonstration_details(task.name, "train", 0, episodes, 2))
+        if differences:
+            raise ValueError(
+                f"{dataset}: holds demonstrations made with other options ({differences}); rerun with the "
+                "options they were made with to reuse them, or add --overwrite to make new ones and retrain"
+            )
+        print(f"[1/4] reusing the {episodes} {task.name} demonstrations in {dataset} (same options)", flush=True)
+        return
+    print(f"[1/4] {episodes} scripted {task.name} demonstrations (training geometry)", flush=True)
+    generate_dataset(
+        task, episodes=episodes, split="train", repo_id=repo_id, root=dataset, command=command, overwrite=overwrite
+    )
+
+
+def _differences(dataset: Path, expected: dict) -> str:
+    """How the demonstrations in `dataset` differ from `expected` (empty: they match). A dataset written
+    elsewhere, without this package's card, is compared by its episode count alone."""
+    try:
+        held = read_card_info(dataset)[0].details
+    except FileNotFoundError:
+        total = json.loads((dataset / "meta" / "info.json").read_text())["total_episodes"]
+        held = {**expected, "scene seeds": f"0..{total - 1}"}
+    return ", ".join(f"{key} {held.get(key)}, not {value}" for key, value in expected.items() if held.get(key) != value)
+
+
+def train_once(command: list[str], output: Path, run_dir: Path, *, overwrite: bool) -> float | None:
+    """Run `lerobot-train` unless `run_dir` holds a checkpoint made by this very command; returns the
+    training time (None when an old checkpoint without its time is reused)."""
+    recorded = output / TRAIN_COMMAND_FILE  # what the checkpoint there was trained with
+    timing = output / TRAIN_SECONDS_FILE
+    if (run_dir / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file() and not overwrite:
+        if recorded.is_file() and recorded.read_text() != shlex.join(command):
+            raise ValueError(
+                f"--output {output}: holds a checkpoint trained by another command ({recorded.read_text()}); "
+                "choose another --output, or add --overwrite to retrain there"
+            )
+        print(f"[2/4] reusing the checkpoint in {run_dir} (trained by the same command)", flush=True)
+        return float(timing.read_text()) if timing.is_file() else None
+    if overwrite and run_dir.exists():
+        shutil.rmtree(run_dir)  # lerobot-train refuses an existing output_dir
+    print(f"[2/4] {shlex.join(command)}", flush=True)
+    output.mkdir(parents=True, exist_ok=True)
+    recorded.write_text(shlex.join(command))
+    train_seconds = run(command)
+    timing.write_text(f"{train_seconds}\n")
+    return train_seconds
 
 
 def orientation_checks(policy, task, trials: list) -> dict:
