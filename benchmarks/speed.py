@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import subprocess
 import sys
@@ -104,6 +105,8 @@ def label_stages(policy: TaxDPDPolicy, stack: ExitStack) -> None:
 
 def breakdown(step, repeats: int) -> dict[str, float]:
     """Seconds a step spends per stage (self time of labelled scopes; nested stages count once, outermost)."""
+    if not torch.cuda.is_available():  # else the profiler's GPU query prints `gpuGetDeviceCount failed` on a CPU
+        os.environ.setdefault("KINETO_LOG_LEVEL", "5")
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(repeats):
             step()
