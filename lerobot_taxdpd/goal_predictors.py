@@ -97,13 +97,12 @@ def load_goal_predictor(name_or_path: str | Path, device: str | None = None, **k
     checkpoint's own, "cpu" for the shipped ones); `kwargs` go to `from_pretrained` (revision, cache_dir, ...).
     """
     from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.utils.utils import is_torch_device_available
 
     from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 
     source = resolve_goal_predictor(name_or_path)
-    if device is not None and not is_torch_device_available(device):
-        raise ValueError(f"device: {device!r} is not available on this machine (try 'cpu')")
+    if device is not None:
+        check_device(device)
     try:
         if device is not None:
             hub_kwargs = {key: kwargs[key] for key in ("revision", "cache_dir", "force_download") if key in kwargs}
@@ -115,6 +114,28 @@ def load_goal_predictor(name_or_path: str | Path, device: str | None = None, **k
             raise
         raise FileNotFoundError(_hub_failure(source)) from error
     return policy.eval()
+
+
+def check_device(device: str) -> None:
+    """Refuse, naming `device`, what torch cannot parse or this machine lacks (a CUDA name on a CUDA-less
+    machine, an index past the last GPU): otherwise the failure comes later, deep in loading or sampling."""
+    import torch
+
+    if not isinstance(device, (str, torch.device)):
+        raise TypeError(f"device: expected a string such as 'cpu' or 'cuda:0', got {type(device).__name__}")
+    try:
+        parsed = torch.device(device)
+    except RuntimeError as error:
+        raise ValueError(f"device: {device!r} is not a torch device name (try 'cpu' or 'cuda')") from error
+    counts = {
+        "cpu": lambda: 1,
+        "cuda": torch.cuda.device_count,
+        "mps": lambda: int(torch.backends.mps.is_available()),
+        "xpu": lambda: torch.xpu.device_count() if torch.xpu.is_available() else 0,
+    }
+    available = counts[parsed.type]() if parsed.type in counts else 0
+    if (parsed.index or 0) >= available:
+        raise ValueError(f"device: {device!r} is not available on this machine (try 'cpu')")
 
 
 def _hub_failure(repo_id: str) -> str:

@@ -15,6 +15,11 @@ class PointCloudError(ValueError):
     """A point cloud or transform that cannot be used, with the argument or field it came from."""
 
 
+#: Largest coordinate magnitude a cloud may hold. No scene spans a thousand kilometres (nor, in millimetres, a
+#: kilometre), and beyond it the float32 arithmetic of the model and of the datasets overflows into NaN.
+MAX_COORDINATE = 1e6
+
+
 def _shape(x) -> tuple[int, ...]:
     return tuple(x.shape)
 
@@ -48,6 +53,19 @@ def check_point_cloud(
     if not bool(finite.all()):
         bad = int((~finite).sum())
         raise PointCloudError(f"{name}: contains {bad} NaN or infinite coordinate values")
+    peak = _peak(points)
+    if peak > MAX_COORDINATE:
+        raise PointCloudError(
+            f"{name}: a coordinate reaches {peak:.3g}, beyond the +-{MAX_COORDINATE:g} any real scene stays "
+            "within (check the units); float32 arithmetic would overflow"
+        )
+
+
+def _peak(points) -> float:
+    """The largest coordinate magnitude, 0 for an empty batch."""
+    if isinstance(points, np.ndarray):
+        return float(np.abs(points).max()) if points.size else 0.0
+    return float(points.abs().max()) if points.numel() else 0.0
 
 
 def check_same_shape(a, b, name_a: str, name_b: str) -> None:

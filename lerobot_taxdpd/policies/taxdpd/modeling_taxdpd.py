@@ -220,7 +220,7 @@ class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
         steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
         check_inference_steps(steps, self.config.num_train_timesteps)
         sampler = self.config.sampler if sampler is None else sampler
-        if sampler not in SAMPLER_ETA:
+        if not isinstance(sampler, str) or sampler not in SAMPLER_ETA:
             raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
         eta = SAMPLER_ETA[sampler]
         model_object = self._at_model_resolution(object_points, self.config.num_object_points)
@@ -245,8 +245,9 @@ class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
         self, object_points: Tensor, scene_points: Tensor, num_samples: int = 1, **sample_kwargs
     ) -> Tensor:
         """SE(3) goal poses T (B, K, 4, 4) with goal = T @ object, fitted to sampled goals by RANSAC-SVD."""
+        object_points, scene_points = self._checked_inputs(object_points, scene_points)
         goals = self.sample_goals(object_points, scene_points, num_samples, **sample_kwargs)
-        source = object_points.to(goals).unsqueeze(1).expand_as(goals)
+        source = object_points.unsqueeze(1).expand_as(goals)
         transforms, _ = estimate_rigid_transform(
             source,
             goals,
@@ -334,15 +335,15 @@ class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
         for value, name in ((object_points, object_name), (scene_points, scene_name)):
             if value is None:
                 raise PointCloudError(f"{name}: missing")
-            if isinstance(value, np.ndarray):
-                value = torch.from_numpy(value)
-            if isinstance(value, Tensor) and value.dim() == 2:
+            if isinstance(value, (np.ndarray, Tensor)) and value.ndim == 2:
                 raise PointCloudError(
                     f"{name}: expected a batch (B, N, 3), got {tuple(value.shape)}; add one with [None]"
                 )
             check_point_cloud(value, name, min_points=3, batched=True)
-            if value.dim() != 3:
-                raise PointCloudError(f"{name}: expected shape (B, N, 3), got {tuple(value.shape)}")
+            if value.ndim != 3 or value.shape[0] == 0:
+                raise PointCloudError(f"{name}: expected shape (B, N, 3) with B >= 1, got {tuple(value.shape)}")
+            if isinstance(value, np.ndarray):  # any byte order or strides; checked above, so float
+                value = torch.from_numpy(np.ascontiguousarray(value, dtype=np.float32))
             checked.append(value)
         object_points, scene_points = checked
         if object_points.shape[0] != scene_points.shape[0]:
