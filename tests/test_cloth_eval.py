@@ -80,13 +80,18 @@ def checkpoints(tmp_path_factory):
     return gc_dp3, taxdpd
 
 
-def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path):
+def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path, capsys):
     gc_dp3, taxdpd = checkpoints
     out = tmp_path / "eval"
     argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--figures", "1"]
     argv += ["--policy.path", str(gc_dp3), "--goal-policy.path", str(taxdpd), "--ground-truth-goals"]
     assert main([*argv, "--num-samples", "3", "--output", str(out), "--ship", str(tmp_path / "shipped")]) == 0
     summary = json.loads((out / "cloth_hang_eval.json").read_text())
+    printed = capsys.readouterr().out.splitlines()  # one summary line, as the rigid tasks print, not the JSON
+    lines = [line for line in printed if line.startswith("cloth_hang: ")]
+    assert len(lines) == 1 and lines[0].startswith("cloth_hang: success with predicted goals ")
+    assert "with ground-truth goals" in lines[0] and lines[0].endswith(f"report: {out / 'cloth_hang_eval.json'}")
+    assert not [line for line in printed if line.lstrip().startswith(("{", "}", '"'))]
     assert summary["trials"] == 2 and summary["workers"] == 2 and summary["config"]["split"] == "test"
     assert summary["machine"]["cpu_count"] >= 1 and summary["machine"]["torch_threads"] >= 1
     for name in ("ground_truth_goal", "predicted_goal"):

@@ -265,7 +265,7 @@ def _workers(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cloth(args: argparse.Namespace) -> int:
-    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline
+    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline, summary_line
 
     output = args.output or OUTPUT[CLOTH_TASK]
     summary = evaluate(
@@ -282,8 +282,7 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
         workers=_workers(args),
         device=args.device,
     )
-    print(json.dumps({k: v for k, v in summary.items() if k != "per_trial"}, indent=2))
-    print(f"per-trial results: {output / EVAL_FILE}")
+    print(summary_line(summary, output / EVAL_FILE))
     if args.ship is not None:
         print(f"shipped as {ship_pipeline(summary, args.ship)} (goal predictor and executor/)")
     return 0

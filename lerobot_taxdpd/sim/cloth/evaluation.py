@@ -317,6 +317,22 @@ def evaluate(
     return summary
 
 
+def summary_line(summary: dict, report: Path) -> str:
+    """The one line the command prints, as the rigid tasks do: success per kind of goal and the goal errors;
+    everything else (per trial, machine, baselines) is in the report."""
+    parts = []
+    for name, label in (("predicted_goal", "predicted goals"), ("ground_truth_goal", "ground-truth goals")):
+        if name in summary:
+            s = summary[name]
+            parts.append(f"{label} {s['success_rate']:.1%} (95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%})")
+    text = f"cloth_hang: success with {', with '.join(parts)} over {summary['trials']} trials" if parts else ""
+    if "goal_metrics" in summary:
+        m, k = summary["goal_metrics"], summary["config"]["num_goal_samples"]
+        goals = f"goal coverage / precision RMSE {m['coverage_rmse']:.3f} / {m['precision_rmse']:.3f} at K = {k}"
+        text = f"{text}; {goals}" if text else f"cloth_hang: {goals} over {summary['trials']} trials"
+    return f"{text}; report: {report}"
+
+
 def orientation_probe(goal_policy_path: str, split: str, seeds, device: str = "cpu") -> dict:
     """The equivariance probe (docs/taxdpd.md) on the start cloths and hangers of these scenes: turning the
     hangers should turn the goal with them, turning or tilting the cloth alone should not."""
