@@ -39,3 +39,8 @@ def test_demo_evaluates_a_shipped_predictor_and_writes_report_and_figures(tmp_pa
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode != 0 and "not an earlier demo's output" in result.stderr
     assert (foreign / "keep.txt").read_text() == "mine"
+
+
+def test_help_lists_the_synthetic_demo_and_points_to_its_own_options():
+    assert "--synthetic" in run_cli("taxdpd-demo", "--help").stdout
+    assert "usage: taxdpd-demo --synthetic" in run_cli("taxdpd-demo", "--synthetic", "--help").stdout

@@ -49,6 +49,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         action="store_true",
         help="train each task's predictor first (CPU recipe; about 25 min a task)",
     )
+    parser.add_argument(
+        "--synthetic",
+        action="store_true",
+        help="instead: the two-slot toy task, trained from scratch in minutes (its options: --synthetic --help)",
+    )
     parser.add_argument("--output", type=Path, default=Path("results/demo"))
     add_threads_argument(parser)
     return parser.parse_args(argv)
