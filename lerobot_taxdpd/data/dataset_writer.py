@@ -81,7 +81,9 @@ class DatasetWriter:
         self._partial: Path | None = None
         self._dataset = None
         if self.root.exists() and not overwrite:
-            raise FileExistsError(f"output folder already exists: {self.root} (choose another root or overwrite it)")
+            raise FileExistsError(
+                f"output folder already exists: {self.root} (choose another --root, or add --overwrite to replace it)"
+            )
 
     # ------------------------------------------------------------------------------------ lifecycle
     def __enter__(self) -> DatasetWriter:

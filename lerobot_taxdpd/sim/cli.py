@@ -302,6 +302,25 @@ def _goal_predictor_source(args: argparse.Namespace) -> str | None:
     return args.policy_path
 
 
+def _warn_if_trained_for_another_task(predictor, source: str, task: str) -> None:
+    """A predictor evaluated on a task its card does not name runs, but the user should know why it fails."""
+    trained_on = getattr(predictor, "metrics", {}).get("task")
+    if trained_on and trained_on != task:
+        print(
+            f"warning: --goal-policy.path {source} was trained for {trained_on}, not for --task {task}; "
+            "its results here measure transfer to another task",
+            file=sys.stderr,
+        )
+
+
+def _check_device(device: str) -> None:
+    """`--device cuda` on a machine without a GPU: say so, before loading a policy fails with another message."""
+    import torch
+
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"--device {device}: torch sees no CUDA GPU on this machine; use --device cpu")
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.reports.benchmarking import write_json
@@ -331,6 +350,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
+        _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
     else:
         predictor = load_predictor(args.predictor)
     if not oracle:
@@ -373,6 +393,7 @@ def main(argv: list[str] | None = None) -> int:
         _refuse_other_kinds_options(args)
         if args.verb == "generate":
             return _generate(args, command)
+        _check_device(args.device)
         if args.task == CLOTH_TASK:
             return _evaluate_cloth(args)
         return _evaluate(args)
