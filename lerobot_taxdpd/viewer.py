@@ -149,6 +149,13 @@ def _open_sink(save: Path | None) -> None:
     rr.spawn()
 
 
+def _discard_recording(save: Path | None) -> None:
+    """A failed view leaves no stub recording that would pass for a finished one."""
+    if save is not None:
+        rr.disconnect()
+        save.unlink(missing_ok=True)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from lerobot_taxdpd.sim.tasks import task_names
 
@@ -194,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{args.task} seed {args.seed}: sample 1 {'succeeded' if record['success'] else 'failed'}")
     except (ValueError, FileNotFoundError) as error:
         print(f"error: {error}", file=sys.stderr)
+        _discard_recording(args.save)
         return 1
     if args.save is not None:
         rr.disconnect()  # flush the recording to the file

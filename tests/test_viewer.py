@@ -70,5 +70,6 @@ def test_without_a_display_or_save_path_it_says_what_to_do(tmp_path, monkeypatch
     assert "pass --save PATH" in capsys.readouterr().err
     assert main(["dataset", "--root", str(tmp_path), "--save", str(tmp_path / "x.rrd")]) == 1
     assert "is not a LeRobot dataset folder (no meta/info.json)" in capsys.readouterr().err
+    assert not (tmp_path / "x.rrd").exists(), "a failed view leaves no stub recording"
     with pytest.raises(SystemExit):
         main(["trial", "--task", "insert_waterproof"])  # the goal predictor is required
