@@ -170,6 +170,22 @@ def _convert(args: argparse.Namespace, root: Path, command: str):
     )
 
 
+def _push_advice(error: Exception) -> str:
+    """What to fix before retrying a push, from its cause: saying "log in" when the network is down sends a
+    user after the wrong problem."""
+    import requests
+    from huggingface_hub.errors import HfHubHTTPError, LocalTokenNotFoundError, OfflineModeIsEnabled
+
+    if isinstance(error, OfflineModeIsEnabled):
+        return "HF_HUB_OFFLINE is set, so huggingface_hub does not contact the Hub: unset it once online"
+    if isinstance(error, requests.ConnectionError | requests.Timeout):
+        return "The Hub could not be reached (no network, or a proxy in the way): connect"
+    status = getattr(getattr(error, "response", None), "status_code", None)
+    if isinstance(error, LocalTokenNotFoundError) or (isinstance(error, HfHubHTTPError) and status in (401, 403)):
+        return "Log in with write access (`hf auth login` or HF_TOKEN)"
+    return "Fix the cause above"
+
+
 def _push(root: Path, repo_id: str, private: bool) -> int:
     from lerobot_taxdpd.data.dataset_writer import push_dataset
 
@@ -178,7 +194,7 @@ def _push(root: Path, repo_id: str, private: bool) -> int:
     except Exception as exc:  # noqa: BLE001 - any Hub/network failure leaves the local dataset intact
         print(
             f"error: pushing {root} to the Hub as {repo_id} failed ({type(exc).__name__}: {exc}).\n"
-            f"The dataset on disk is complete. Log in (`hf auth login` or HF_TOKEN) and retry with:\n"
+            f"The dataset on disk is complete. {_push_advice(exc)}, then retry with:\n"
             f"  {PROG} push --root {shlex.quote(str(root))} --repo-id {repo_id}" + (" --private" if private else ""),
             file=sys.stderr,
         )

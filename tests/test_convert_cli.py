@@ -6,6 +6,7 @@ which spares each case the several seconds of importing LeRobot and torch again.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -97,7 +98,7 @@ def test_push_offline_keeps_the_dataset_and_says_how_to_retry(tmp_path, capsys):
     result = capsys.readouterr()
     assert "converted  : 2 episodes" in result.out
     assert "Offline" in result.err, "the upload must reach huggingface_hub, which refuses offline"
-    assert "hf auth login" in result.err
+    assert "HF_HUB_OFFLINE is set" in result.err and "hf auth login" not in result.err  # the cause, not a login
     assert f"taxdpd-convert push --root {root} --repo-id me/nist --private" in result.err
     readme = (root / "README.md").read_text()
     assert "license: mit" in readme and "- taxdpd" in readme and "- nist" in readme
@@ -105,6 +106,11 @@ def test_push_offline_keeps_the_dataset_and_says_how_to_retry(tmp_path, capsys):
 
     assert main(["push", "--root", str(root), "--repo-id", "me/nist"]) == 1
     assert "Offline" in capsys.readouterr().err
+    # Online but with no Hub to reach (a closed local port stands in for a dead network): the network is named.
+    env = {**os.environ, "HF_HUB_OFFLINE": "0", "HF_ENDPOINT": "http://127.0.0.1:9", "HF_TOKEN": "hf_unused"}
+    command = [str(BIN / "taxdpd-convert"), "push", "--root", str(root), "--repo-id", "me/nist"]
+    unreachable = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    assert unreachable.returncode == 1 and "The Hub could not be reached" in unreachable.stderr
 
 
 def test_interrupt_leaves_the_previous_dataset_untouched(tmp_path):
