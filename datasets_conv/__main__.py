@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     # Heavy imports (LeRobot, torch) only once the arguments are known, so --help answers at once.
     from lerobot.utils.constants import HF_LEROBOT_HOME
 
-    from datasets_conv.raw_io import DemoError
+    from datasets_conv.raw_io import DemoError, LayoutError
     from lerobot_taxdpd.data.validation import PointCloudError
 
     configure_threads(args.threads)
@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         summary = _convert(args, root, shlex.join([PROG, *argv]))
     except (FileExistsError, FileNotFoundError, ValueError) as exc:  # DemoError, PointCloudError, bad options
-        bad_demo = isinstance(exc, (DemoError, PointCloudError))
+        bad_demo = isinstance(exc, (DemoError, PointCloudError)) and not isinstance(exc, LayoutError)
         hint = "\n(nothing was written; --skip-invalid converts the other demos and lists this one)"
         print(f"error: {exc}" + (hint if bad_demo and not args.skip_invalid else ""), file=sys.stderr)
         return 1

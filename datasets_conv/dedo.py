@@ -30,7 +30,7 @@ from datasets_conv.pipeline import (
     sampling_indices,
     write_dataset,
 )
-from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
+from datasets_conv.raw_io import DemoError, as_cloud, as_finite, layout_error, natural_key, open_npz, read_field
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
 from lerobot_taxdpd.data.schema import (
     ACTION_KEY,
@@ -87,9 +87,15 @@ def list_goal_demos(raw_dir: Path, split: str) -> list[DemoRef]:
         if not folders:
             stores = [p.name for p in raw_dir.glob("*.zarr")]
             hint = f" (found {', '.join(stores)}: use --kind policy)" if stores else ""
-            raise DemoError(f"{raw_dir}: no {DEMO_GLOB} files or split folders{hint}")
+            raise layout_error(raw_dir, f"no {DEMO_GLOB} files or split folders{hint}", _holds_goal_demos)
     files = [f for folder in folders for f in sorted(folder.glob(DEMO_GLOB), key=natural_key)]
     return [DemoRef(str(f), f) for f in files]
+
+
+def _holds_goal_demos(folder: Path) -> bool:
+    """`folder` is a --raw-dir of goal demos: demo files, or split folders of them."""
+    splits = [folder / name for names in GOAL_SPLIT_DIRS.values() for name in names]
+    return any(folder.glob(DEMO_GLOB)) or any(split.is_dir() and any(split.glob(DEMO_GLOB)) for split in splits)
 
 
 def goal_episode(demo: DemoRef, options: ConversionOptions, counts: tuple[int, int], task: str):

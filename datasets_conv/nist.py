@@ -33,7 +33,7 @@ from datasets_conv.pipeline import (
     sampled_frames,
     write_dataset,
 )
-from datasets_conv.raw_io import DemoError, as_cloud, as_finite, natural_key, open_npz, read_field
+from datasets_conv.raw_io import DemoError, as_cloud, as_finite, layout_error, natural_key, open_npz, read_field
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
 from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features
 from lerobot_taxdpd.data.validation import check_rigid_transform
@@ -67,7 +67,8 @@ def find_connectors(raw_dir: Path) -> list[Path]:
     connectors = sorted((p for p in raw_dir.iterdir() if _is_connector(p)), key=natural_key)
     if not connectors:
         teach = ", ".join(TEACH_FILES)
-        raise DemoError(f"{raw_dir}: no connector folders with .npz demos or teach data ({teach})")
+        problem = f"no connector folders with .npz demos or teach data ({teach})"
+        raise layout_error(raw_dir, problem, lambda p: any(_is_connector(c) for c in p.iterdir()))
     return connectors
 
 

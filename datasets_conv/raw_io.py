@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,28 @@ from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud
 
 class DemoError(ValueError):
     """A demo that cannot be converted; the message names the file and the field."""
+
+
+class LayoutError(DemoError):
+    """`--raw-dir` does not hold the source's layout: there is no demo that --skip-invalid could pass over."""
+
+
+def layout_error(raw_dir: Path, problem: str, holds_layout: Callable[[Path], bool]) -> LayoutError:
+    """`problem`, plus where below `raw_dir` the layout is: a --raw-dir one level too high is the common slip."""
+    found = _folders_below(raw_dir, holds_layout)
+    hint = f"; it is further down, in {', '.join(map(str, found[:3]))}: point --raw-dir there" if found else ""
+    return LayoutError(f"{raw_dir}: {problem}{hint}")
+
+
+def _folders_below(raw_dir: Path, accept: Callable[[Path], bool], depth: int = 3) -> list[Path]:
+    """The shallowest sub-folders of `raw_dir` (at most `depth` levels down) that `accept` takes."""
+    level = [raw_dir]
+    for _ in range(depth):
+        level = [child for folder in level for child in sorted(folder.iterdir(), key=natural_key) if child.is_dir()]
+        found = [folder for folder in level if accept(folder)]
+        if found or not level:
+            return found
+    return []
 
 
 def natural_key(path: Path | str) -> list:

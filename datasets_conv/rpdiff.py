@@ -28,7 +28,17 @@ from datasets_conv.pipeline import (
     sampled_frames,
     write_dataset,
 )
-from datasets_conv.raw_io import DemoError, as_cloud, dict_entry, natural_key, open_npz, read_field, unwrap_dict
+from datasets_conv.raw_io import (
+    DemoError,
+    LayoutError,
+    as_cloud,
+    dict_entry,
+    layout_error,
+    natural_key,
+    open_npz,
+    read_field,
+    unwrap_dict,
+)
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo
 from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS, GOAL_DATASET_FPS, goal_prediction_features
 from lerobot_taxdpd.data.validation import check_same_shape
@@ -91,8 +101,8 @@ def find_demo_dir(raw_dir: Path) -> Path:
         return task_types[0]
     if task_types:
         names = ", ".join(p.name for p in task_types)
-        raise DemoError(f"{raw_dir}: several task types ({names}); point --raw-dir at one of them")
-    raise DemoError(f"{raw_dir}: no {DEMO_GLOB} files here or in chunk sub-folders")
+        raise LayoutError(f"{raw_dir}: several task types ({names}); point --raw-dir at one of them")
+    raise layout_error(raw_dir, f"no {DEMO_GLOB} files here or in chunk sub-folders", lambda p: bool(_demo_files(p)))
 
 
 def identify_task(demo_dir: Path) -> tuple[str, RPDiffTask | None]:

@@ -17,7 +17,15 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from conftest import BIN, TINY_TAXDPD, run_cli
-from convert_fixtures import leftovers, nist_demo, rpdiff_demo, save_nist_npz, save_rpdiff_demo
+from convert_fixtures import (
+    dedo_goal_demo,
+    leftovers,
+    nist_demo,
+    rpdiff_demo,
+    save_dedo_goal_demo,
+    save_nist_npz,
+    save_rpdiff_demo,
+)
 from datasets_conv.__main__ import main
 from datasets_conv.rpdiff import RPDIFF_TASKS
 
@@ -84,6 +92,25 @@ def test_bad_demo_fails_cleanly_and_skip_invalid_lists_it(tmp_path, capsys):
 
     assert main(args) == 1 and "already exists" in capsys.readouterr().err
     assert LeRobotDataset("me/x", root=root).meta.total_episodes == 2
+
+
+def test_a_raw_dir_one_level_too_high_points_at_the_layout_below(tmp_path, capsys):
+    """The common slip names where the demos are, and does not suggest --skip-invalid, which cannot help."""
+    rng = np.random.default_rng(0)
+    rpdiff = tmp_path / "task_demos" / "mug_rack_easy_single" / "task_name_mug_on_rack"
+    save_rpdiff_demo(rpdiff / "demo_aug_0.npz", rpdiff_demo(rng)[0])
+    save_nist_npz(tmp_path / "nist" / "teach" / "waterproof" / "0.npz", *nist_demo(rng)[:3])
+    save_dedo_goal_demo(tmp_path / "dedo" / "demos" / "train_tax3d" / "demo_0.npz", dedo_goal_demo(rng))
+    for source, too_high, layout in [
+        (["rpdiff"], tmp_path / "task_demos", rpdiff),
+        (["nist"], tmp_path / "nist", tmp_path / "nist" / "teach"),
+        (["dedo", "--kind", "goal"], tmp_path / "dedo", tmp_path / "dedo" / "demos"),
+    ]:
+        args = [*source, "--raw-dir", str(too_high), "--repo-id", "me/x", "--root", str(tmp_path / "out")]
+        assert main(args) == 1
+        error = capsys.readouterr().err
+        assert f"it is further down, in {layout}: point --raw-dir there" in error, error
+        assert "--skip-invalid" not in error
 
 
 def test_push_offline_keeps_the_dataset_and_says_how_to_retry(tmp_path, capsys):
