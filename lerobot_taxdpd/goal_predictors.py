@@ -96,8 +96,7 @@ def load_goal_predictor(name_or_path: str | Path, device: str | None = None, **k
     `device` ("cpu", "cuda", "cuda:1", ...) is where the weights load and the sampling runs (default: the
     checkpoint's own, "cpu" for the shipped ones); `kwargs` go to `from_pretrained` (revision, cache_dir, ...).
     """
-    from lerobot.configs.policies import PreTrainedConfig
-
+    from lerobot_taxdpd.policies.checkpoints import read_config
     from lerobot_taxdpd.policies.taxdpd.modeling_taxdpd import TaxDPDPolicy
 
     source = resolve_goal_predictor(name_or_path)
@@ -106,7 +105,7 @@ def load_goal_predictor(name_or_path: str | Path, device: str | None = None, **k
     try:
         if device is not None:
             hub_kwargs = {key: kwargs[key] for key in ("revision", "cache_dir", "force_download") if key in kwargs}
-            kwargs["config"] = PreTrainedConfig.from_pretrained(source, **hub_kwargs)
+            kwargs["config"] = read_config(source, **hub_kwargs)
             kwargs["config"].device = device
         policy = TaxDPDPolicy.from_pretrained(source, **kwargs)
     except OSError as error:

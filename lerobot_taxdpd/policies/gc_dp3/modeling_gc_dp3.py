@@ -22,6 +22,7 @@ from lerobot.policies.utils import populate_queues
 from torch import Tensor, nn
 
 from lerobot_taxdpd.data.schema import ACTION_KEY, STATE_KEY
+from lerobot_taxdpd.policies.checkpoints import CheckedLoading
 from lerobot_taxdpd.policies.ema import EmaWeights
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
@@ -134,7 +135,7 @@ class GcDp3Model(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------ the policy
-class GcDp3Policy(EmaWeights, PreTrainedPolicy):
+class GcDp3Policy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     """LeRobot policy around `GcDp3Model`: observation queues, action chunking and the optional EMA."""
 
     config_class = GcDp3Config

@@ -30,6 +30,7 @@ from lerobot_taxdpd.maths.geometry import (
     lift_point_motion,
     nearest_indices,
 )
+from lerobot_taxdpd.policies.checkpoints import CheckedLoading
 from lerobot_taxdpd.policies.ema import EmaWeights
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 from lerobot_taxdpd.policies.taxdpd.augmentation import (
@@ -147,7 +148,7 @@ class ModelFrame:
         return points.float() / self.scale + origin
 
 
-class TaxDPDPolicy(EmaWeights, PreTrainedPolicy):
+class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     """Goal predictor for object placement: samples where every object point must go.
 
     Public API (metres, caller's frame): `sample_goals`, `predict_poses`, `placement_distribution`.
