@@ -20,8 +20,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from conftest import BIN, install_in_hub_cache
-from lerobot_taxdpd import goal_predictors, load_goal_predictor, make_taxdpd_pre_post_processors
-from lerobot_taxdpd.policies.checkpoints import LEGACY_VALUES, CheckpointError
+from lerobot_taxdpd import TaxDPDPolicy, goal_predictors, load_goal_predictor, make_taxdpd_pre_post_processors
+from lerobot_taxdpd.policies.checkpoints import LEGACY_VALUES, CheckpointError, read_config
 from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
 from test_gc_dp3 import make_config as gc_dp3_config
 from test_policy import clouds, tiny_policy
@@ -215,3 +215,13 @@ def test_lerobot_eval_refuses_a_damaged_checkpoint_naming_the_file(tmp_path):
         print(f"{damage}: exit {result.returncode}; last line: {log.strip().splitlines()[-1]}")
         assert result.returncode != 0, f"lerobot-eval loaded a checkpoint with {damage}"
         assert expected in log, log[-3000:]
+
+
+def test_a_checkpoint_without_a_weight_average_loads_into_a_policy_that_keeps_one(checkpoint):
+    """Fine-tuning a shipped predictor (saved without its average) with `--policy.use_ema=true`: the average
+    starts at the loaded weights rather than at a random initialisation."""
+    config = read_config(checkpoint)
+    config.use_ema = True
+    policy = TaxDPDPolicy.from_pretrained(checkpoint, config=config)
+    average, trained = policy.ema_model.state_dict(), policy.model.state_dict()
+    assert average.keys() == trained.keys() and all(torch.equal(average[k], trained[k]) for k in trained)
