@@ -7,6 +7,7 @@ valid, so the test also fails when a good input is refused. Each test prints its
 
 from __future__ import annotations
 
+import numbers
 import time
 import warnings
 from collections import Counter
@@ -35,7 +36,7 @@ from test_policy import clouds, tiny_policy
 FLOAT_DTYPES = ("float32", "float64", "float16", "bfloat16", ">f4")
 DTYPES = (*FLOAT_DTYPES, "int64", "bool", "complex64", "object")
 SCALES = (0.0, 1e-30, 1e-6, 1.0, 1e3, MAX_COORDINATE, 1e7, 1e20, 1e300)
-LAYOUTS = ("contiguous", "transposed", "strided", "reversed", "expanded")
+LAYOUTS = ("contiguous", "transposed", "strided", "reversed", "expanded", "meta", "sparse")
 NON_FINITE = (None, float("nan"), float("inf"), float("-inf"))
 
 
@@ -56,7 +57,7 @@ def _report(what: str, outcomes: Counter, start: float) -> None:
 
 # ------------------------------------------------------------------------------------------- arrays
 @st.composite
-def arrays(draw, points: tuple[int, ...] = (0, 1, 2, 3, 17, 40, 90)):
+def arrays(draw, points: tuple[int, ...] = (0, 1, 2, 3, 17, 40, 90), layouts: tuple[str, ...] = LAYOUTS):
     """A cloud-like array of any container, shape, dtype, scale, layout, with NaN or inf sometimes."""
     shape = [draw(st.sampled_from((1, 1, 2, 0))), draw(st.sampled_from(points)), draw(st.sampled_from((3, 3, 3, 2, 4)))]
     rank = draw(st.sampled_from(("batched", "batched", "unbatched", "extra")))
@@ -68,7 +69,7 @@ def arrays(draw, points: tuple[int, ...] = (0, 1, 2, 3, 17, 40, 90)):
         values.flat[rng.integers(values.size)] = bad
     return _laid_out(
         _typed(values, draw(st.sampled_from(DTYPES)), draw(st.sampled_from(("tensor", "numpy")))),
-        draw(st.sampled_from(LAYOUTS)),
+        draw(st.sampled_from(layouts)),
     )
 
 
@@ -83,7 +84,8 @@ def _typed(values: np.ndarray, dtype: str, container: str):
 
 
 def _laid_out(array, layout: str):
-    """The same values as a non-contiguous view: transposed storage, every other row, reversed rows, broadcast."""
+    """The same values as a non-contiguous view (transposed storage, every other row, reversed rows, broadcast),
+    or as a tensor without plain values (on the meta device, sparse)."""
     if array.ndim < 2 or layout == "contiguous":
         return array
     if layout == "transposed":
@@ -95,11 +97,17 @@ def _laid_out(array, layout: str):
         return doubled[..., ::2, :]
     if layout == "reversed":
         return array[..., ::-1, :] if isinstance(array, np.ndarray) else array.flip(-2)
-    return array[..., :1, :].expand(array.shape) if isinstance(array, torch.Tensor) else array
+    if isinstance(array, np.ndarray):
+        return array
+    if layout == "expanded":
+        return array[..., :1, :].expand(array.shape)
+    return array.to("meta") if layout == "meta" else array.to_sparse()
 
 
 def is_valid_cloud(array, min_points: int = 3) -> bool:
     """The documented contract: a float (B >= 1, N >= min_points, 3) array, finite and within MAX_COORDINATE."""
+    if isinstance(array, torch.Tensor) and (array.layout != torch.strided or array.is_meta):
+        return False
     if not isinstance(array, (np.ndarray, torch.Tensor)) or str(array.dtype).split(".")[-1] not in (
         *FLOAT_DTYPES,
         "float32",
@@ -113,17 +121,20 @@ def is_valid_cloud(array, min_points: int = 3) -> bool:
 
 # ----------------------------------------------------------------------------------------- policy API
 OPTIONS = {
-    "num_samples": (1, 2, 3, 0, -1, 2.0, "2", None),
+    "num_samples": (1, 2, 3, np.int64(2), 0, -1, 2.0, "2", None),
     "num_inference_steps": (None, 1, 2, 4, 3, 0, 2.0),
     "sampler": (None, "ddim", "ddpm", "DDIM", "", ["ddim"]),
+    "generator": (None, torch.Generator().manual_seed(0), "seed", 3),
 }
 
 
 def _option_is_valid(name: str, value) -> bool:
     if name == "num_samples":
-        return isinstance(value, int) and value >= 1
+        return isinstance(value, numbers.Integral) and value >= 1
     if name == "num_inference_steps":
         return value is None or (isinstance(value, int) and value >= 1 and 100 % value == 0)
+    if name == "generator":
+        return isinstance(value, torch.Generator)
     return value in (None, "ddim", "ddpm")
 
 
@@ -281,7 +292,7 @@ def broken_demos(draw):
         st.one_of(
             st.tuples(st.just("scale"), st.sampled_from(SCALES), st.sampled_from(NON_FINITE)),
             st.tuples(st.just("dtype"), st.sampled_from([d for d in DTYPES if d != "bfloat16"])),
-            st.tuples(st.just("replace"), arrays(points=(0, 2, 3, 16, 40, 200)).map(_as_numpy)),
+            st.tuples(st.just("replace"), arrays(points=(0, 2, 3, 16, 40, 200), layouts=LAYOUTS[:5]).map(_as_numpy)),
             st.tuples(st.just("replace"), st.sampled_from(("a string", np.zeros((4, 4)), np.zeros(())))),
             st.just(("missing",)),
         )

@@ -35,6 +35,8 @@ def check_point_cloud(
     """Raise `PointCloudError` unless `points` is a finite (N, 3) cloud, or (..., N, 3) when `batched`."""
     if not isinstance(points, (np.ndarray, torch.Tensor)):
         raise PointCloudError(f"{name}: expected a numpy array or torch tensor, got {type(points).__name__}")
+    if isinstance(points, torch.Tensor) and (points.layout != torch.strided or points.is_meta):
+        raise PointCloudError(f"{name}: expected a dense tensor of values, got {points.layout} on {points.device}")
     shape = _shape(points)
     expected = "(..., N, 3)" if batched else "(N, 3)"
     if (batched and len(shape) < 2) or (not batched and len(shape) != 2) or shape[-1] != 3:

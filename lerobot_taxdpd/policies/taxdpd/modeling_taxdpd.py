@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import numbers
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -215,9 +216,14 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         Row i of each sample is where point i of the object should go. `num_inference_steps` and
         `sampler` ("ddim" or "ddpm") default to the config's; `generator` makes sampling reproducible.
         """
-        if not isinstance(num_samples, int) or num_samples < 1:
+        if not isinstance(num_samples, numbers.Integral) or num_samples < 1:
             raise ValueError(f"num_samples: must be a positive integer, got {num_samples!r}")
+        num_samples = int(num_samples)
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
+        if generator is not None and not (
+            isinstance(generator, torch.Generator) and generator.device.type == object_points.device.type
+        ):
+            raise TypeError(f"generator: expected a torch.Generator on {object_points.device}, got {generator!r}")
         steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
         check_inference_steps(steps, self.config.num_train_timesteps)
         sampler = self.config.sampler if sampler is None else sampler
