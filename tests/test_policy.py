@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import warnings
 
 import numpy as np
@@ -147,8 +148,9 @@ def test_inputs_in_the_wrong_units_are_flagged_with_the_likely_cause():
         policy.sample_goals(obj, scene, 1)
     with pytest.warns(UserWarning, match=r"object_points: the object's radius is .* these look like millimetres"):
         policy.sample_goals(obj * 1000, scene * 1000, 1)
+    policy.train().forward({OBJECT_KEY: obj * 50, SCENE_KEY: scene * 50, ACTION_KEY: obj * 50})
     with pytest.warns(UserWarning, match="observation.pointcloud.object: .* check the units"):
-        policy.train().forward({OBJECT_KEY: obj * 50, SCENE_KEY: scene * 50, ACTION_KEY: obj * 50})
+        policy.update()  # a training step's checks are read back at its end, as lerobot-train calls it
 
 
 def test_training_batch_with_mismatched_goal_is_rejected():
@@ -167,6 +169,24 @@ def test_loss_reports_each_part_and_reaches_every_parameter():
     assert set(parts) == {"loss_gmm", "loss_local", "loss_frame", "loss_shape"}
     loss.backward()
     assert all(p.grad is not None for p in policy.parameters())
+    policy.update()  # the end of the step: the parts become the floats a logger takes
+    assert all(type(value) is float and math.isfinite(value) for value in parts.values())
+    assert parts["loss_local"] == pytest.approx(float(loss) - parts["loss_gmm"], rel=1e-5)
+
+
+@pytest.mark.parametrize("key", [OBJECT_KEY, SCENE_KEY, ACTION_KEY])
+def test_a_training_batch_with_nan_stops_training_naming_the_field(key):
+    policy = tiny_policy().train()
+    obj, scene = clouds(4)
+    batch = {OBJECT_KEY: obj.clone(), SCENE_KEY: scene.clone(), ACTION_KEY: obj + 0.2}
+    batch[key][1, 2, 0] = float("nan")
+    policy.forward(batch)  # queued without waiting for the device
+    with pytest.raises(PointCloudError, match=rf"{key}: contains 1 NaN"):
+        policy.update()
+    clean = {OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.2}
+    policy.forward(batch)
+    with pytest.raises(PointCloudError, match=rf"{key}: contains 1 NaN"):  # without update(): the next call
+        policy.forward(clean)
 
 
 def test_point_clouds_are_never_normalised_per_axis():

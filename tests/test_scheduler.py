@@ -4,7 +4,12 @@ import pytest
 import torch
 
 from lerobot_taxdpd import TaxDPDConfig
-from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
+from lerobot_taxdpd.policies.taxdpd.schedulers import (
+    DDIMSampler,
+    make_sampling_scheduler,
+    make_training_scheduler,
+    training_target,
+)
 
 
 def _config(prediction_type: str = "sample") -> TaxDPDConfig:
@@ -43,3 +48,22 @@ def test_ddim_with_the_true_target_recovers_the_sample_in_any_valid_number_of_st
 def test_step_counts_that_would_pair_timesteps_inexactly_are_refused(steps):
     with pytest.raises(ValueError, match="num_inference_steps: must divide"):
         TaxDPDConfig.for_point_clouds(32, 64, device="cpu", num_inference_steps=steps)
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample", "v_prediction"])
+@pytest.mark.parametrize("eta", [0.0, 1.0])
+def test_the_float_coefficient_sampler_takes_diffusers_ddim_steps(prediction_type, eta):
+    g = torch.Generator().manual_seed(1)
+    config = _config(prediction_type)
+    reference, sampler = make_sampling_scheduler(config), DDIMSampler(config)
+    for steps in (1, 10, 100):
+        reference.set_timesteps(steps)
+        ours = sampler.steps(steps)
+        assert [s.timestep for s in ours] == reference.timesteps.tolist()
+        sample = torch.randn(4, 32, 3, generator=g)
+        for step, t in zip(ours, reference.timesteps, strict=True):
+            output, noise = torch.randn(sample.shape, generator=g), torch.randn(sample.shape, generator=g)
+            expected = reference.step(output, t, sample, eta=eta, variance_noise=noise).prev_sample
+            taken = sampler.step(output, step, sample, eta, noise)
+            torch.testing.assert_close(taken, expected, rtol=1e-5, atol=1e-5)
+            sample = expected

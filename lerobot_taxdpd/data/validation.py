@@ -31,8 +31,11 @@ def check_point_cloud(
     min_points: int = 1,
     num_points: int | None = None,
     batched: bool = False,
+    check_values: bool = True,
 ) -> None:
-    """Raise `PointCloudError` unless `points` is a finite (N, 3) cloud, or (..., N, 3) when `batched`."""
+    """Raise `PointCloudError` unless `points` is a finite (N, 3) cloud, or (..., N, 3) when `batched`.
+
+    `check_values=False` checks type, shape and dtype only; the caller then checks `value_faults` itself."""
     if not isinstance(points, (np.ndarray, torch.Tensor)):
         raise PointCloudError(f"{name}: expected a numpy array or torch tensor, got {type(points).__name__}")
     if isinstance(points, torch.Tensor) and (points.layout != torch.strided or points.is_meta):
@@ -51,23 +54,41 @@ def check_point_cloud(
         np.issubdtype(points.dtype, np.floating) if isinstance(points, np.ndarray) else points.is_floating_point()
     ):
         raise PointCloudError(f"{name}: expected floating-point coordinates, got dtype {points.dtype}")
-    finite = np.isfinite(points) if isinstance(points, np.ndarray) else torch.isfinite(points)
-    if not bool(finite.all()):
-        bad = int((~finite).sum())
-        raise PointCloudError(f"{name}: contains {bad} NaN or infinite coordinate values")
-    peak = _peak(points)
+    if check_values:
+        raise_value_faults(name, *value_faults(points).tolist())
+
+
+def value_faults(points) -> np.ndarray | torch.Tensor:
+    """[number of NaN or infinite coordinates, largest finite coordinate magnitude] of a cloud, computed where
+    the cloud lives: one read-back checks it, and a training step can defer that read-back (a GPU keeps going)."""
+    if isinstance(points, np.ndarray):
+        finite = np.isfinite(points)
+        peak = np.abs(np.where(finite, points, 0.0)).max() if points.size else 0.0
+        return np.array([(~finite).sum(), peak], dtype=np.float64)
+    finite = torch.isfinite(points)
+    magnitude = torch.where(finite, points.abs(), 0.0)
+    peak = magnitude.amax() if points.numel() else magnitude.new_zeros(())
+    return torch.stack([(~finite).sum().to(peak.dtype), peak]).double()
+
+
+def check_values_together(clouds: dict[str, np.ndarray | torch.Tensor]) -> None:
+    """`check_point_cloud`'s value checks of several named clouds, read back from their device in one transfer."""
+    faults = {name: value_faults(cloud) for name, cloud in clouds.items()}
+    tensors = [f for f in faults.values() if isinstance(f, torch.Tensor)]
+    read = iter(torch.stack([f.to(tensors[0].device) for f in tensors]).tolist() if tensors else [])
+    for name, found in faults.items():
+        raise_value_faults(name, *(found.tolist() if isinstance(found, np.ndarray) else next(read)))
+
+
+def raise_value_faults(name: str, nonfinite: float, peak: float) -> None:
+    """Raise `PointCloudError` for the faults `value_faults` found in the cloud called `name`."""
+    if nonfinite:
+        raise PointCloudError(f"{name}: contains {int(nonfinite)} NaN or infinite coordinate values")
     if peak > MAX_COORDINATE:
         raise PointCloudError(
             f"{name}: a coordinate reaches {peak:.3g}, beyond the +-{MAX_COORDINATE:g} any real scene stays "
             "within (check the units); float32 arithmetic would overflow"
         )
-
-
-def _peak(points) -> float:
-    """The largest coordinate magnitude, 0 for an empty batch."""
-    if isinstance(points, np.ndarray):
-        return float(np.abs(points).max()) if points.size else 0.0
-    return float(points.abs().max()) if points.numel() else 0.0
 
 
 def check_same_shape(a, b, name_a: str, name_b: str) -> None:

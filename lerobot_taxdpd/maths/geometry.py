@@ -7,6 +7,10 @@ numpy arrays and answer in the type they were given.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from contextvars import ContextVar
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -14,6 +18,19 @@ from torch import Tensor
 from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
 
 ArrayLike = Tensor | np.ndarray
+
+_DEVICE_CODE_PATHS: ContextVar[bool] = ContextVar("device_code_paths", default=False)
+
+
+@contextlib.contextmanager
+def device_code_paths() -> Iterator[None]:
+    """Within it, CPU tensors take the code path that other devices take (no CPU-only library shortcuts),
+    so that counting the ops on the CPU counts what a GPU would launch."""
+    token = _DEVICE_CODE_PATHS.set(True)
+    try:
+        yield
+    finally:
+        _DEVICE_CODE_PATHS.reset(token)
 
 
 def _as_tensor(x: ArrayLike) -> tuple[Tensor, bool]:
@@ -42,7 +59,7 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
     flat = points.detach().reshape(-1, n, points.shape[-1])
     b = flat.shape[0]
     starts = start_index.reshape(b) if start_index is not None else torch.zeros(b, dtype=torch.long)
-    if flat.device.type == "cpu":
+    if flat.device.type == "cpu" and not _DEVICE_CODE_PATHS.get():
         import fpsample
 
         clouds, firsts = flat.float().numpy(), starts.tolist()

@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
-from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 
 from lerobot_taxdpd.data.schema import (
@@ -40,6 +39,7 @@ from lerobot_taxdpd.data.schema import (
     SCENE_KEY,
     STATE_KEY,
 )
+from lerobot_taxdpd.policies.optim import FusedAdamWConfig
 
 PREDICTION_TYPES = ("sample", "epsilon")
 CLOUD_NORMALIZATIONS = ("none", "isotropic", "per_axis")
@@ -151,8 +151,8 @@ class GcDp3Config(PreTrainedConfig):
         return key in self.cloud_keys or key.startswith(POINT_CLOUD_PREFIX)
 
     # ---- LeRobot hooks
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    def get_optimizer_preset(self) -> FusedAdamWConfig:
+        return FusedAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,

@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
-from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import DiffuserSchedulerConfig
 
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.policies.optim import FusedAdamWConfig
 
 ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")
@@ -194,8 +194,8 @@ class TaxDPDConfig(PreTrainedConfig):
         )
 
     # ---- LeRobot hooks
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    def get_optimizer_preset(self) -> FusedAdamWConfig:
+        return FusedAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,

@@ -12,6 +12,7 @@ import contextlib
 import logging
 import numbers
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +24,14 @@ from torch import Tensor, nn
 
 from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.data.validation import PointCloudError, check_point_cloud, check_same_shape
+from lerobot_taxdpd.data.validation import (
+    PointCloudError,
+    check_point_cloud,
+    check_same_shape,
+    check_values_together,
+    raise_value_faults,
+    value_faults,
+)
 from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
     farthest_point_sample,
@@ -48,6 +56,9 @@ from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
 from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
 
 logger = logging.getLogger(__name__)
+
+#: The clouds a training batch holds, in the order `forward` checks them.
+CLOUD_KEYS = (OBJECT_KEY, SCENE_KEY, ACTION_KEY)
 
 #: DDIM's stochasticity per sampler name: deterministic DDIM, or ancestral DDPM sampling.
 SAMPLER_ETA = {"ddim": 0.0, "ddpm": 1.0}
@@ -168,16 +179,29 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         self._init_ema()
         self.metrics: dict = {}
         self._warned_scale = False
+        self._unread_step: tuple[dict[str, Tensor], list[tuple[Tensor, Callable]]] | None = None
 
     # ------------------------------------------------------------------------------------ LeRobot hooks
     def reset(self) -> None:
         """Nothing to reset: each call predicts a goal from the current observation alone."""
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
+        """Training loss and its terms. In training mode nothing here waits for the device: the clouds' values
+        (NaN, overflow) and the loss terms are read back together at the end of the step, by `update()`, which
+        lerobot-train calls after the optimiser (or by the next `forward`); until then the terms are tensors."""
+        self._read_back_step()
+        eager = not self.training
         object_points, scene_points = self._checked_inputs(
-            batch.get(OBJECT_KEY), batch.get(SCENE_KEY), OBJECT_KEY, SCENE_KEY
+            batch.get(OBJECT_KEY), batch.get(SCENE_KEY), OBJECT_KEY, SCENE_KEY, check_values=eager
         )
-        goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points)
+        goal_points = self._checked_goal(batch.get(ACTION_KEY), object_points, check_values=eager)
+        checks = []
+        if not eager:
+            for name, cloud in zip(CLOUD_KEYS, (object_points, scene_points, goal_points), strict=True):
+                checks.append((value_faults(cloud), lambda values, name=name: raise_value_faults(name, *values)))
+            if self.config.point_scale is not None:
+                radius = object_radius(object_points).median().reshape(1).double()
+                checks.append((radius, lambda values: self._warn_units(values[0], OBJECT_KEY)))
         if self.training:
             object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
         frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points, OBJECT_KEY))
@@ -186,7 +210,29 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 frame.to_model(object_points), frame.to_model(scene_points), frame.to_model(goal_points)
             )
         loss = losses.pop("loss")
-        return loss, {name: float(value.detach()) for name, value in losses.items()}
+        terms = {name: value.detach().float() for name, value in losses.items()}
+        self._unread_step = (terms, checks)
+        if eager:
+            self._read_back_step()
+        return loss, terms
+
+    def update(self) -> None:
+        """After each optimiser step (`lerobot-train` calls it): the weight average, then the step's read-back."""
+        super().update()
+        self._read_back_step()
+
+    def _read_back_step(self) -> None:
+        """One device-to-host transfer for the last `forward`: run its deferred input checks (which raise on
+        bad clouds), then turn the loss terms it returned into floats, in the same dict."""
+        if self._unread_step is None:
+            return
+        (terms, checks), self._unread_step = self._unread_step, None
+        values = torch.cat([torch.stack(list(terms.values())).double(), *(t for t, _ in checks)]).tolist()
+        start = len(terms)
+        for tensor, check in checks:
+            check(values[start : start + tensor.numel()])
+            start += tensor.numel()
+        terms.update(zip(terms, values[: len(terms)], strict=False))
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -304,7 +350,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     def _point_scale(self, object_points: Tensor, name: str = "object_points") -> float:
         if self.config.point_scale is not None:
-            self._check_units(object_points, name)
+            if not self.training:  # a training step checks the units at its read-back
+                self._warn_units(float(object_radius(object_points.double()).median()), name)
             return self.config.point_scale
         if not self._warned_scale:
             logger.warning(
@@ -314,10 +361,10 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             self._warned_scale = True
         return self.config.object_scale / float(object_radius(object_points.double()).median().clamp_min(1e-9))
 
-    def _check_units(self, object_points: Tensor, name: str) -> None:
-        """Warn when the objects are far larger or smaller than the ones this checkpoint was trained on: the
-        model sees every input multiplied by `point_scale`, so wrong units give confident garbage."""
-        radius = float(object_radius(object_points.double()).median())
+    def _warn_units(self, radius: float, name: str) -> None:
+        """Warn when the objects (median radius, metres) are far larger or smaller than the ones this checkpoint
+        was trained on: the model sees every input multiplied by `point_scale`, so wrong units give confident
+        garbage."""
         trained = self.config.object_scale / self.config.point_scale  # median training object radius, metres
         ratio = radius / trained
         if 1 / SCALE_TOLERANCE <= ratio <= SCALE_TOLERANCE:
@@ -336,7 +383,12 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         )
 
     def _checked_inputs(
-        self, object_points, scene_points, object_name: str = "object_points", scene_name: str = "scene_points"
+        self,
+        object_points,
+        scene_points,
+        object_name: str = "object_points",
+        scene_name: str = "scene_points",
+        check_values: bool = True,
     ) -> tuple[Tensor, Tensor]:
         checked = []
         for value, name in ((object_points, object_name), (scene_points, scene_name)):
@@ -346,13 +398,16 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 raise PointCloudError(
                     f"{name}: expected a batch (B, N, 3), got {tuple(value.shape)}; add one with [None]"
                 )
-            check_point_cloud(value, name, min_points=3, batched=True)
+            check_point_cloud(value, name, min_points=3, batched=True, check_values=False)
             if value.ndim != 3 or value.shape[0] == 0:
                 raise PointCloudError(f"{name}: expected shape (B, N, 3) with B >= 1, got {tuple(value.shape)}")
-            if isinstance(value, np.ndarray):  # any byte order or strides; checked above, so float
-                value = torch.from_numpy(np.ascontiguousarray(value, dtype=np.float32))
             checked.append(value)
-        object_points, scene_points = checked
+        if check_values:
+            check_values_together({object_name: checked[0], scene_name: checked[1]})
+        object_points, scene_points = (
+            torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) if isinstance(v, np.ndarray) else v
+            for v in checked  # numpy of any byte order or strides; checked above, so float
+        )
         if object_points.shape[0] != scene_points.shape[0]:
             raise PointCloudError(
                 f"{object_name} and {scene_name}: batch sizes {object_points.shape[0]} and "
@@ -361,10 +416,10 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         device = next(self.parameters()).device
         return object_points.to(device, torch.float32), scene_points.to(device, torch.float32)
 
-    def _checked_goal(self, goal_points, object_points: Tensor) -> Tensor:
+    def _checked_goal(self, goal_points, object_points: Tensor, check_values: bool = True) -> Tensor:
         if goal_points is None:
             raise PointCloudError(f"{ACTION_KEY}: missing (the goal cloud is the training target)")
-        check_point_cloud(goal_points, ACTION_KEY, min_points=3, batched=True)
+        check_point_cloud(goal_points, ACTION_KEY, min_points=3, batched=True, check_values=check_values)
         check_same_shape(object_points, goal_points, OBJECT_KEY, ACTION_KEY)
         return goal_points.to(object_points)
 

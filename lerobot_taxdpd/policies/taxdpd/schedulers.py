@@ -4,9 +4,16 @@
 DiT: with T = 100 the plain range (1e-4, 0.02) would leave sqrt(alpha_bar_T) ~ 0.6 of the signal, so samples
 would start from a distribution the model never saw. Sampling uses "trailing" timesteps, so the first step
 starts at T - 1 (pure noise) and the last one lands on the clean sample.
+
+`DDIMSampler` takes diffusers' DDIM update with every coefficient a Python float: diffusers' `step` does its
+scalar arithmetic on 0-d tensors and compares them in Python, a dozen host ops and reads per call, which
+on a GPU sit between the launches of every denoising step.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 from diffusers import DDIMScheduler, DDPMScheduler
 from torch import Tensor
@@ -31,6 +38,53 @@ def make_training_scheduler(config) -> DDPMScheduler:
 
 def make_sampling_scheduler(config) -> DDIMScheduler:
     return DDIMScheduler(**noise_schedule_kwargs(config), timestep_spacing="trailing", set_alpha_to_one=True)
+
+
+@dataclass(frozen=True)
+class DDIMStep:
+    """From timestep `timestep` (signal level `alpha_bar`) to the previous one (`alpha_bar_prev`)."""
+
+    timestep: int
+    alpha_bar: float
+    alpha_bar_prev: float
+
+
+class DDIMSampler:
+    """The DDIM update of `make_sampling_scheduler`'s scheduler ("trailing" timesteps, alpha_bar = 1 after the
+    last step, no clipping), computed with Python-float coefficients: elementwise ops on the sample only."""
+
+    def __init__(self, config) -> None:
+        reference = make_sampling_scheduler(config)
+        self.alphas_cumprod = reference.alphas_cumprod.double().tolist()
+        self.num_train_timesteps = config.num_train_timesteps
+        self.prediction_type = config.prediction_type
+
+    def steps(self, num_inference_steps: int) -> list[DDIMStep]:
+        """The denoising steps, first (pure noise, T - 1) to last; `num_inference_steps` divides T."""
+        stride = self.num_train_timesteps // num_inference_steps
+        timesteps = range(self.num_train_timesteps - 1, -1, -stride)
+        return [
+            DDIMStep(t, self.alphas_cumprod[t], self.alphas_cumprod[t - stride] if t >= stride else 1.0)
+            for t in timesteps
+        ]
+
+    def step(
+        self, model_output: Tensor, step: DDIMStep, sample: Tensor, eta: float = 0.0, noise: Tensor | None = None
+    ) -> Tensor:
+        """The sample at the previous timestep; `noise` (standard normal) is needed when `eta` > 0."""
+        a, a_prev = step.alpha_bar, step.alpha_bar_prev
+        if self.prediction_type == "epsilon":
+            epsilon = model_output
+            clean = (sample - math.sqrt(1 - a) * model_output) / math.sqrt(a)
+        elif self.prediction_type == "sample":
+            clean = model_output
+            epsilon = (sample - math.sqrt(a) * model_output) / math.sqrt(1 - a)
+        else:  # v_prediction
+            clean = math.sqrt(a) * sample - math.sqrt(1 - a) * model_output
+            epsilon = math.sqrt(a) * model_output + math.sqrt(1 - a) * sample
+        std = eta * math.sqrt((1 - a_prev) / (1 - a) * (1 - a / a_prev))
+        previous = math.sqrt(a_prev) * clean + math.sqrt(max(1 - a_prev - std**2, 0.0)) * epsilon
+        return previous + std * noise if std > 0 else previous
 
 
 def training_target(scheduler: DDPMScheduler, clean: Tensor, noise: Tensor, t: Tensor) -> Tensor:

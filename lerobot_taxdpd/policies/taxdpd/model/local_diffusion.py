@@ -21,7 +21,7 @@ from torch import Tensor, nn
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
-from lerobot_taxdpd.policies.taxdpd.schedulers import make_sampling_scheduler, make_training_scheduler, training_target
+from lerobot_taxdpd.policies.taxdpd.schedulers import DDIMSampler, make_training_scheduler, training_target
 
 
 @dataclass
@@ -144,7 +144,7 @@ class LocalDiffusion(nn.Module):
         self.parameterization = make_parameterization(config)
         self.denoiser = LocalDenoiser(config, self.parameterization.frame_dim, self.parameterization.has_point_output)
         self.training_scheduler = make_training_scheduler(config)
-        self.sampling_scheduler = make_sampling_scheduler(config)
+        self.sampler = DDIMSampler(config)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
         self.rotation_noise = config.rotation_noise
 
@@ -186,20 +186,16 @@ class LocalDiffusion(nn.Module):
     ) -> Tensor:
         """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3)."""
         context = self.denoiser.context(object_centred, scene)
-        param, scheduler = self.parameterization, self.sampling_scheduler
+        param, sampler = self.parameterization, self.sampler
         state = param.initial_state(context.object_centred, generator)
-        scheduler.set_timesteps(num_inference_steps)
-        for t in scheduler.timesteps:
-            predicted = self._predict(context, state, t.expand(scene.shape[0]).to(scene.device))
+        for step in sampler.steps(num_inference_steps):
+            t = torch.full((scene.shape[0],), step.timestep, device=scene.device)
+            predicted = self._predict(context, state, t)
             state = param.project(
                 {
-                    k: scheduler.step(
-                        predicted[k],
-                        t,
-                        state[k],
-                        eta=eta,
-                        variance_noise=randn_like(state[k], generator) if eta > 0 else None,
-                    ).prev_sample
+                    k: sampler.step(
+                        predicted[k], step, state[k], eta, randn_like(state[k], generator) if eta > 0 else None
+                    )
                     for k in state
                 }
             )

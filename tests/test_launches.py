@@ -1,0 +1,83 @@
+"""What a training step and a sampling call would launch on a GPU: the counter, and the step's host syncs."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
+from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_sample
+from lerobot_taxdpd.reports.launches import LaunchCounter
+
+
+def test_the_counter_counts_launches_and_reads_but_not_views():
+    x = torch.randn(8, 3)
+    counter = LaunchCounter()
+    with counter:
+        y = x.view(24).reshape(8, 3).transpose(0, 1)  # views: nothing launched
+        z = (y + 1).relu()  # two kernels
+        float(z.sum())  # a kernel and a read-back
+        z[z > 0]  # a comparison kernel, and a shape that depends on the data
+        z.tolist()
+    assert counter.total_ops() == 5  # add, relu, sum, gt, index
+    assert counter.syncs["other"] == {"_local_scalar_dense": 1, "index": 1, "tolist": 1}
+
+
+def test_cpu_shortcuts_take_the_device_path_when_asked():
+    points = torch.rand(2, 64, 3, generator=torch.Generator().manual_seed(0))
+    counter = LaunchCounter()
+    with counter:
+        fast = farthest_point_sample(points, 8)
+    assert counter.syncs  # the CPU path reads the clouds into numpy
+    with device_code_paths():
+        portable = farthest_point_sample(points, 8)
+    torch.testing.assert_close(portable, fast)  # the same indices either way
+
+
+def _small_policy(**overrides) -> TaxDPDPolicy:
+    fields = dict(hidden_dim=16, num_blocks=1, num_heads=2, max_neighbors=8, use_ema=True, point_scale=20.0)
+    config = TaxDPDConfig.for_point_clouds(32, 64, device="cpu", **(fields | overrides))
+    return TaxDPDPolicy(config)
+
+
+@pytest.mark.parametrize("overrides", [{}, {"use_amp": True}], ids=["fp32", "bf16"])
+def test_a_training_step_never_waits_for_the_device_until_its_read_back(overrides):
+    """Forward, backward, clipping, the optimiser and the weight average as lerobot-train runs them: no host sync
+    until `update()` reads the step's loss terms and input checks back, once."""
+    torch.manual_seed(0)
+    policy = _small_policy(**overrides).train()
+    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
+    g = torch.Generator().manual_seed(1)
+    obj = torch.rand(4, 32, 3, generator=g) * 0.1
+    batch = {OBJECT_KEY: obj, SCENE_KEY: torch.rand(4, 64, 3, generator=g), ACTION_KEY: obj + 0.3}
+
+    def step(counter: LaunchCounter) -> dict:
+        with counter.stage("step"):
+            loss, terms = policy.forward(batch)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), 1.0, foreach=True)
+            optimizer.step()
+            optimizer.zero_grad()
+        with counter.stage("read-back"):
+            policy.update()
+        return terms
+
+    step(LaunchCounter())  # the first update reads the average's step count once
+    counter = LaunchCounter()
+    with device_code_paths(), counter:
+        terms = step(counter)
+    assert "step" not in counter.syncs, counter.syncs
+    assert sum(counter.syncs["read-back"].values()) == 1
+    assert counter.ops["step"]  # and the step did run
+    assert all(isinstance(value, float) for value in terms.values())
+
+
+def test_sampling_reads_back_at_most_twice():
+    """The input checks (values, units) are the only reads: the denoising loop waits for nothing."""
+    policy = _small_policy().eval()
+    g = torch.Generator().manual_seed(2)
+    counter = LaunchCounter()
+    with device_code_paths(), counter:
+        policy.sample_goals(torch.rand(1, 32, 3, generator=g) * 0.1, torch.rand(1, 64, 3, generator=g), 10)
+    assert counter.total_syncs() <= 2, counter.syncs
