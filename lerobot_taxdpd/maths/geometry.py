@@ -49,8 +49,8 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
     """Batched farthest point sampling: (..., N, 3) -> indices (..., num_samples), in selection order.
 
     Deterministic: starts from `start_index` (default point 0). On the CPU each cloud goes through
-    fpsample's exact FPS (the same indices as the torch loop below, 2-7x faster at the model's sizes);
-    elsewhere a loop sequential over samples and vectorised over the batch.
+    fpsample's exact FPS (the same indices as the device loop, 2-7x faster at the model's sizes);
+    elsewhere a loop sequential over samples and vectorised over the batch (five ops a sample).
     """
     batch_shape = points.shape[:-2]
     n = points.shape[-2]
@@ -68,16 +68,39 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
             for cloud, first in zip(clouds, firsts, strict=True)
         ]
         return torch.from_numpy(np.stack(chosen).astype(np.int64)).reshape(*batch_shape, num_samples)
-    rows = torch.arange(b, device=points.device)
-    indices = torch.empty(b, num_samples, dtype=torch.long, device=points.device)
-    nearest = torch.full((b, n), float("inf"), dtype=flat.dtype, device=points.device)
-    current = starts.to(points.device)
+    return _farthest_point_loop(flat, num_samples, starts.to(points.device)).reshape(*batch_shape, num_samples)
+
+
+def _farthest_point_loop(flat: Tensor, num_samples: int, current: Tensor) -> Tensor:
+    """(B, N, 3) -> (B, num_samples) from start indices `current` (B,): a loop of five ops a sample, the indices
+    stacked once at the end."""
+    nearest = torch.full(flat.shape[:2], float("inf"), dtype=flat.dtype, device=flat.device)
+    chosen = []
     for i in range(num_samples):
-        indices[:, i] = current
-        centre = flat[rows, current].unsqueeze(1)
-        nearest = torch.minimum(nearest, (flat - centre).square().sum(-1))
+        chosen.append(current)
+        if i == num_samples - 1:
+            break
+        centre = flat.gather(1, current.view(-1, 1, 1).expand(-1, 1, flat.shape[-1]))
+        nearest = torch.minimum(nearest, torch.linalg.vector_norm(flat - centre, dim=-1))
         current = nearest.argmax(-1)
-    return indices.reshape(*batch_shape, num_samples)
+    return torch.stack(chosen, 1)
+
+
+def farthest_point_sample_parts(parts: list[Tensor], counts: list[int]) -> list[Tensor]:
+    """FPS of several batched clouds at once, each from its point 0: parts[i] (B, N_i, 3) -> (B, counts[i]).
+
+    Off the CPU, all parts go through one loop (each padded with copies of its first point, which are never
+    farther than any other point), so the number of ops follows the largest count, not the sum of them."""
+    if parts[0].device.type == "cpu" and not _DEVICE_CODE_PATHS.get():
+        return [farthest_point_sample(part, count) for part, count in zip(parts, counts, strict=True)]
+    for part, count in zip(parts, counts, strict=True):
+        if count > part.shape[1]:
+            raise ValueError(f"cannot sample {count} points from a cloud of {part.shape[1]}")
+    n = max(part.shape[1] for part in parts)
+    padded = torch.cat([torch.cat([p.detach(), p[:, :1].detach().expand(-1, n - p.shape[1], -1)], 1) for p in parts])
+    starts = torch.zeros(padded.shape[0], dtype=torch.long, device=padded.device)
+    indices = _farthest_point_loop(padded, max(counts), starts).split(parts[0].shape[0])
+    return [chosen[:, :count] for chosen, count in zip(indices, counts, strict=True)]
 
 
 def farthest_point_indices(points: ArrayLike, num_samples: int, start_index: int = 0) -> np.ndarray:

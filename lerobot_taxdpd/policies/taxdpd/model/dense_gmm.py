@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, make_encoder
 
 
 class DenseGMM(nn.Module):
@@ -30,14 +30,26 @@ class DenseGMM(nn.Module):
         self.backbone = DiT(dim, config.num_heads, config.num_blocks, config.mlp_ratio)
         self.head = OutputHead(dim, 4)
 
-    def forward(self, object_centred: Tensor, scene_centred: Tensor, offset: Tensor) -> tuple[Tensor, Tensor]:
-        """object_centred (B, N, 3), scene_centred (B, M, 3), offset = object centroid - scene centroid (B, 3).
+    def forward(
+        self,
+        object_centred: Tensor,
+        scene_centred: Tensor,
+        offset: Tensor,
+        layouts: list[SamplingLayout] | None = None,
+    ) -> tuple[Tensor, Tensor]:
+        """object_centred (B, N, 3), scene_centred (B, M, 3), offset = object centroid - scene centroid (B, 3);
+        `layouts`: the object's and the scene's FPS layouts, when the caller shares them with the local stage.
 
         Returns mixing logits (B, M) and component means (B, M, 3) in the scene-centred frame.
         """
-        object_tokens = self.object_encoder(object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0))
+        object_layout, scene_layout = layouts if layouts is not None else (None, None)
+        object_tokens = self.object_encoder(
+            object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0), layout=object_layout
+        )
         condition = self.condition + self.offset_embedding(offset)
-        scene_tokens = self.scene_encoder(scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0))
+        scene_tokens = self.scene_encoder(
+            scene_centred, scene_centred.new_zeros(*scene_centred.shape[:2], 0), layout=scene_layout
+        )
         out = self.head(self.backbone(scene_tokens, object_tokens, condition), condition).float()
         return out[..., 0], scene_centred + out[..., 1:]
 

@@ -20,7 +20,13 @@ from torch import Tensor, nn
 
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
+    Grouping,
+    SamplingLayout,
+    cloud_layouts,
+    concat_layouts,
+    make_encoder,
+)
 from lerobot_taxdpd.policies.taxdpd.schedulers import DDIMSampler, make_training_scheduler, training_target
 
 
@@ -47,6 +53,7 @@ class LocalDenoiser(nn.Module):
     def __init__(self, config, frame_dim: int | None, has_point_output: bool) -> None:
         super().__init__()
         dim = config.hidden_dim
+        self.config = config
         self.use_reconstruction = config.use_reconstruction_embedding
         self.use_deformation = config.use_deformation_embedding
         if self.use_reconstruction:
@@ -64,21 +71,28 @@ class LocalDenoiser(nn.Module):
         self.point_head = OutputHead(dim, 3) if has_point_output else None
         self.frame_head = OutputHead(dim, frame_dim) if frame_dim else None
 
-    def context(self, object_centred: Tensor, scene: Tensor) -> DenoiserContext:
+    def context(
+        self, object_centred: Tensor, scene: Tensor, layouts: list[SamplingLayout] | None = None
+    ) -> DenoiserContext:
         """Cache the work that does not depend on the goal estimate.
 
         `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3), i.e.
         K translated copies of each scene: object-only work, and the farthest point sampling (invariant to
-        translation), are done once per object and scene and repeated.
+        translation), are done once per object and scene and repeated. `layouts` are the object's and the
+        scene's own (B rows), when the caller has them already.
         """
         repeats = scene.shape[0] // object_centred.shape[0]
+        if layouts is None:
+            layouts = cloud_layouts(self.config, object_centred, scene[::repeats])
+        object_layout, scene_layout = layouts if layouts is not None else (None, None)
         reconstruction_layout = scene_features = None
         if self.use_reconstruction:
-            layout = self.reconstruction_encoder.layout([object_centred, scene[::repeats]])
-            reconstruction_layout = layout.repeat_interleave(repeats) if layout is not None else None
+            if layouts is not None:
+                sizes = [object_centred.shape[1], scene.shape[1]]
+                reconstruction_layout = concat_layouts(layouts, sizes).repeat_interleave(repeats)
         else:
-            scene_features = self.scene_encoder(scene, _empty_channels(scene))
-        object_layout = self.object_encoder.layout([object_centred])
+            scene_layout = scene_layout.repeat_interleave(repeats) if scene_layout is not None else None
+            scene_features = self.scene_encoder(scene, _empty_channels(scene), layout=scene_layout)
         object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
         object_features = self.object_encoder(
             object_centred, _empty_channels(object_centred), layout=object_layout, grouping=object_grouping
@@ -153,7 +167,12 @@ class LocalDiffusion(nn.Module):
         return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t))
 
     def loss(
-        self, object_centred: Tensor, scene: Tensor, goal: Tensor, generator: torch.Generator | None = None
+        self,
+        object_centred: Tensor,
+        scene: Tensor,
+        goal: Tensor,
+        generator: torch.Generator | None = None,
+        layouts: list[SamplingLayout] | None = None,
     ) -> dict[str, Tensor]:
         """Denoising losses for clean goals (B, N, 3) in the placement frame, against the configured target."""
         param, scheduler = self.parameterization, self.training_scheduler
@@ -172,7 +191,7 @@ class LocalDiffusion(nn.Module):
             noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         noisy = {k: scheduler.add_noise(signal[k], noise[k], t) for k in clean}
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
-        return param.loss(self._predict(self.denoiser.context(object_centred, scene), noisy, t), target)
+        return param.loss(self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t), target)
 
     @torch.no_grad()
     def sample(
@@ -183,9 +202,10 @@ class LocalDiffusion(nn.Module):
         *,
         eta: float = 0.0,
         generator: torch.Generator | None = None,
+        layouts: list[SamplingLayout] | None = None,
     ) -> Tensor:
         """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3)."""
-        context = self.denoiser.context(object_centred, scene)
+        context = self.denoiser.context(object_centred, scene, layouts)
         param, sampler = self.parameterization, self.sampler
         state = param.initial_state(context.object_centred, generator)
         for step in sampler.steps(num_inference_steps):

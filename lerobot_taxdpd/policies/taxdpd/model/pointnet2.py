@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lerobot_taxdpd.maths.geometry import farthest_point_sample, gather_points
+from lerobot_taxdpd.maths.geometry import farthest_point_sample_parts, gather_points
 
 
 @dataclass
@@ -34,6 +34,10 @@ class SamplingLayout:
 
     def repeat_interleave(self, repeats: int) -> SamplingLayout:
         return SamplingLayout(self.level1.repeat_interleave(repeats, 0), self.level2.repeat_interleave(repeats, 0))
+
+    def head(self, n: int) -> SamplingLayout:
+        """The layout of the first `n` clouds of the batch."""
+        return SamplingLayout(self.level1[:n], self.level2[:n])
 
 
 @dataclass
@@ -60,19 +64,40 @@ def centroid_count(n: int, ratio: float) -> int:
 
 
 @torch.no_grad()
-def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> SamplingLayout:
-    """FPS centroids per part (each (B, N_i, 3)), indexed into the concatenation of the parts."""
+def part_layouts(parts: Sequence[Tensor], ratios: tuple[float, float]) -> list[SamplingLayout]:
+    """FPS centroids of each part (B, N_i, 3) on its own, indexed into that part; one FPS pass per level serves
+    all parts (see `farthest_point_sample_parts`)."""
+    parts = [part.float() for part in parts]
+    counts1 = [centroid_count(part.shape[1], ratios[0]) for part in parts]
+    level1 = farthest_point_sample_parts(parts, counts1)
+    centroids = [gather_points(part, idx) for part, idx in zip(parts, level1, strict=True)]
+    level2 = farthest_point_sample_parts(centroids, [centroid_count(c, ratios[1]) for c in counts1])
+    return [SamplingLayout(a, b) for a, b in zip(level1, level2, strict=True)]
+
+
+def concat_layouts(layouts: Sequence[SamplingLayout], sizes: Sequence[int]) -> SamplingLayout:
+    """The layout of the concatenated parts (`sizes[i]` points each), from each part's own layout."""
     level1, level2 = [], []
     offset = offset1 = 0
-    for part in parts:
-        part = part.float()
-        idx1 = farthest_point_sample(part, centroid_count(part.shape[1], ratios[0]))
-        idx2 = farthest_point_sample(gather_points(part, idx1), centroid_count(idx1.shape[1], ratios[1]))
-        level1.append(idx1 + offset)
-        level2.append(idx2 + offset1)
-        offset += part.shape[1]
-        offset1 += idx1.shape[1]
+    for layout, size in zip(layouts, sizes, strict=True):
+        level1.append(layout.level1 + offset)
+        level2.append(layout.level2 + offset1)
+        offset += size
+        offset1 += layout.level1.shape[1]
     return SamplingLayout(torch.cat(level1, 1), torch.cat(level2, 1))
+
+
+def cloud_layouts(config, object_points: Tensor, scene_points: Tensor) -> list[SamplingLayout] | None:
+    """The object's and the scene's own layouts, which every PointNet++ encoder of the model shares (FPS does not
+    change when a cloud moves rigidly), or None for the MLP encoders."""
+    if config.encoder != "pointnet2":
+        return None
+    return part_layouts([object_points, scene_points], config.sa_ratios)
+
+
+def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> SamplingLayout:
+    """FPS centroids per part (each (B, N_i, 3)), indexed into the concatenation of the parts."""
+    return concat_layouts(part_layouts(parts, ratios), [part.shape[1] for part in parts])
 
 
 def _square_distances(a: Tensor, b: Tensor) -> Tensor:
