@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -64,10 +63,9 @@ def fps_options(points: np.ndarray, num_samples: int, repeats: int) -> list[dict
 
 def conversion_rate(num_demos: int, repeats: int, workdir: Path) -> dict:
     """Median demos/s of `convert_rpdiff` on RPDiff-size demos (imports and file writing of inputs excluded)."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from convert_fixtures import rpdiff_demo, save_rpdiff_demo
     from datasets_conv.pipeline import ConversionOptions
     from datasets_conv.rpdiff import convert_rpdiff
+    from datasets_conv.samples import rpdiff_demo, save_rpdiff_demo
 
     demo_dir = workdir / "mug_rack_med_multi" / "task_name_mug_on_rack_multi"
     rng = np.random.default_rng(0)

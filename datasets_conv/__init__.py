@@ -1,8 +1,9 @@
 """Converters from published demo formats into TAX-DPD LeRobot v3.0 datasets.
 
-One module per source (`rpdiff`, `dedo`, `nist`), one CLI: `taxdpd-convert {rpdiff,dedo,nist,push}` or
-`python -m datasets_conv ...`. Every converter writes through `lerobot_taxdpd.data.dataset_writer.DatasetWriter`,
-so a failed or interrupted run never leaves a partial dataset behind. Names load lazily, so the CLI's
+One module per source (`rpdiff`, `dedo`, `nist`), one CLI: `taxdpd-convert {rpdiff,dedo,nist,push,samples}` or
+`python -m datasets_conv ...`; `samples` writes a few raw demos of every layout (`datasets_conv.samples`).
+Every converter writes through `lerobot_taxdpd.data.dataset_writer.DatasetWriter`, so a failed or
+interrupted run never leaves a partial dataset behind. Names load lazily, so the CLI's
 `--help` does not wait for LeRobot and torch to import.
 """
 

@@ -16,10 +16,13 @@ DESCRIPTION = """\
 Convert robot demonstrations into a LeRobot v3.0 dataset for TAX-DPD (float32 point clouds, one demo = one
 episode of several farthest-point samplings), write it to --root, and optionally push it to the Hugging Face
 Hub. Pick the source format with the first argument; `%(prog)s SOURCE --help` describes its layout.
+No data at hand? `%(prog)s samples --out DIR` writes a few raw demos of every layout and prints the command
+that converts each.
 """
 
 EPILOG = """\
 examples:
+  %(prog)s samples --out raw_samples
   %(prog)s rpdiff --raw-dir task_demos/mug_rack_easy_single/task_name_mug_on_rack \\
       --repo-id me/rpdiff_mug_easyrack --root data/rpdiff_mug_easyrack --split train
   %(prog)s dedo --kind goal --raw-dir cloth_dataset --repo-id me/dedo_cloth_goals --split train
@@ -76,9 +79,7 @@ them. --units auto reads a demo whose clouds span more than 5 units as millimetr
 def _common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--raw-dir", type=Path, required=True, help="folder of raw demos (layout above)")
     parser.add_argument("--repo-id", required=True, help="dataset name on the Hub, e.g. 'me/rpdiff_mug_easyrack'")
-    parser.add_argument(
-        "--root", type=Path, help="output folder; must not exist (default: $HF_LEROBOT_HOME/<repo-id>)"
-    )
+    parser.add_argument("--root", type=Path, help="output folder; must not exist (default: $HF_LEROBOT_HOME/<repo-id>)")
     parser.add_argument(
         "--object-cloud-size",
         type=int,
@@ -111,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    sources = parser.add_subparsers(dest="source", required=True, metavar="{rpdiff,dedo,nist,push}")
+    sources = parser.add_subparsers(dest="source", required=True, metavar="{rpdiff,dedo,nist,push,samples}")
     for name, (summary, layout) in SOURCE_HELP.items():
         sub = sources.add_parser(
             name, help=summary, description=layout, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -136,7 +137,34 @@ def build_parser() -> argparse.ArgumentParser:
     push.add_argument("--root", type=Path, required=True, help="folder of a dataset written by this tool")
     push.add_argument("--repo-id", required=True, help="dataset name on the Hub")
     _push_arguments(push, optional=False)
+    samples = sources.add_parser(
+        "samples",
+        help="write a few raw demos of every layout, to try the converters without the real data",
+        description="Write synthetic raw demos in every layout the converters read (RPDiff per demo and chunked, "
+        "DEDO goal demos and zarr rollouts, NIST .npz and millimetre teach data) under --out, and print the "
+        "command that converts each folder.",
+    )
+    samples.add_argument("--out", type=Path, required=True, help="folder to write; must not exist or be empty")
+    samples.add_argument("--demos", type=int, default=4, help="demos of each layout (>= 2; default: 4)")
+    samples.add_argument("--seed", type=int, default=0, help="seed of the synthetic clouds; default: 0")
     return parser
+
+
+def _samples(out: Path, demos: int, seed: int) -> int:
+    """Write the sample folders; refuse a non-empty --out, whose other files a converter would read too."""
+    from datasets_conv.samples import conversion_commands, write_samples
+
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        print(f"error: --out {out} exists and is not an empty folder: remove it or name another", file=sys.stderr)
+        return 1
+    try:
+        write_samples(out, demos=demos, seed=seed)
+    except ValueError as exc:
+        print(f"error: --{exc}", file=sys.stderr)
+        return 1
+    commands = "\n".join(f"  {shlex.join([PROG, *argv])}" for argv in conversion_commands(out))
+    print(f"wrote {demos} synthetic demos of every raw layout under {out}; convert each with:\n{commands}")
+    return 0
 
 
 def _convert(args: argparse.Namespace, root: Path, command: str):
@@ -209,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.source == "push":
         return _push(args.root, args.repo_id, args.private)
+    if args.source == "samples":
+        return _samples(args.out, args.demos, args.seed)
     if args.private and not args.push:
         parser.error("--private only applies with --push")
 

@@ -17,17 +17,17 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from conftest import BIN, TINY_TAXDPD, run_cli
-from convert_fixtures import (
+from convert_fixtures import leftovers
+from datasets_conv.__main__ import main
+from datasets_conv.rpdiff import RPDIFF_TASKS
+from datasets_conv.samples import (
     dedo_goal_demo,
-    leftovers,
     nist_demo,
     rpdiff_demo,
     save_dedo_goal_demo,
     save_nist_npz,
     save_rpdiff_demo,
 )
-from datasets_conv.__main__ import main
-from datasets_conv.rpdiff import RPDIFF_TASKS
 
 
 def convert(*args, module: bool = False) -> subprocess.CompletedProcess:

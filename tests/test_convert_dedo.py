@@ -9,10 +9,11 @@ import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from conftest import TINY_GC_DP3, run_cli
-from convert_fixtures import dedo_goal_demo, leftovers, row_indices, save_dedo_goal_demo, write_dedo_rollouts
+from convert_fixtures import leftovers, row_indices
 from datasets_conv.dedo import convert_dedo_goals, convert_dedo_rollouts
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
+from datasets_conv.samples import dedo_goal_demo, save_dedo_goal_demo, write_dedo_rollouts
 from lerobot_taxdpd.data.dataset_writer import read_card_info
 from lerobot_taxdpd.data.schema import (
     ACTION_KEY,

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from convert_fixtures import leftovers, nist_demo, row_indices, save_nist_npz, save_nist_teach
+from convert_fixtures import leftovers, row_indices
 from datasets_conv.nist import convert_nist, split_demos
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
+from datasets_conv.samples import nist_demo, save_nist_npz, save_nist_teach
 from lerobot_taxdpd.data.dataset_writer import read_card_info
 from lerobot_taxdpd.data.schema import ACTION_KEY, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import PointCloudError

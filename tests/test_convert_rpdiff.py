@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from convert_fixtures import leftovers, row_indices, rpdiff_demo, save_rpdiff_chunk, save_rpdiff_demo, write_split_info
+from convert_fixtures import leftovers, row_indices
 from datasets_conv.pipeline import ConversionOptions
 from datasets_conv.raw_io import DemoError
 from datasets_conv.rpdiff import RPDIFF_TASKS, convert_rpdiff, find_demo_dir, identify_task
+from datasets_conv.samples import rpdiff_demo, save_rpdiff_chunk, save_rpdiff_demo, write_split_info
 from lerobot_taxdpd.data.dataset_writer import read_card_info
 from lerobot_taxdpd.data.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import PointCloudError

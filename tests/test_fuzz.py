@@ -19,7 +19,9 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from convert_fixtures import (
+from datasets_conv import dedo, nist, rpdiff
+from datasets_conv.pipeline import ConversionOptions, DemoRef
+from datasets_conv.samples import (
     dedo_goal_demo,
     nist_demo,
     rpdiff_demo,
@@ -27,8 +29,6 @@ from convert_fixtures import (
     save_nist_npz,
     save_rpdiff_demo,
 )
-from datasets_conv import dedo, nist, rpdiff
-from datasets_conv.pipeline import ConversionOptions, DemoRef
 from lerobot_taxdpd import load_goal_predictor
 from lerobot_taxdpd.data.validation import MAX_COORDINATE
 from test_policy import clouds, tiny_policy
