@@ -7,6 +7,11 @@ times), FLOPs a sample (FlopCounterMode, attention counted on the math backend),
 matmul peak, and goal-sampling latency for K = 1 and K = 10. Medians of `--repeats`; machine, threads and
 config are printed beside the figures and written to JSON.
 
+Launches: the kernel-launching aten ops and host syncs of one training step (as lerobot-train runs it:
+forward, backward, gradient clipping, the optimizer, `update()`) and of one K = 10 sampling call, by stage,
+counted with every CPU-only shortcut on its device path, so the figures are what a GPU would launch
+(`lerobot_taxdpd.reports.launches`). They do not depend on the machine or its load.
+
     python benchmarks/speed.py                                  # results/speed.json
     python benchmarks/speed.py --models cpu --repeats 7 --threads 2
     python benchmarks/speed.py --models cpu --set max_neighbors=16 use_amp=true   # a variant
@@ -38,10 +43,12 @@ from torch.utils.flop_counter import FlopCounterMode
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.maths.geometry import device_code_paths
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import PointMLPEncoder, PointNet2Encoder
 from lerobot_taxdpd.recipes import recipe_path
 from lerobot_taxdpd.reports.benchmarking import machine_info, timed, write_json
+from lerobot_taxdpd.reports.launches import LaunchCounter
 
 # The authors' development code on this CPU (2 threads, idle; batch 16, 512/1024 points), for comparison.
 REFERENCE = {"local_step_s": 2.24, "gmm_step_s": 3.92, "both_steps_s": 6.16, "sample_k10_s": 48.1}
@@ -125,6 +132,51 @@ def breakdown(step, repeats: int) -> dict[str, float]:
         "backward": totals.get("backward", 0.0),
         "optimizer": totals.get("optimizer", 0.0),
     }
+
+
+def launch_figures(fields: dict, batch_size: int) -> dict:
+    """Launches and host syncs of one training step (after a first one) and of one K = 10 sampling call."""
+    torch.manual_seed(0)
+    config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
+    policy = TaxDPDPolicy(config).train()
+    optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
+    batch = slot_batch(batch_size, config.num_object_points, config.num_scene_points)
+
+    def step(counter: LaunchCounter) -> None:
+        with counter.stage("forward"):
+            loss, _ = policy.forward(batch)
+        with counter.stage("backward"):
+            loss.backward()
+        with counter.stage("optimizer"):
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), config.optimizer_grad_clip_norm, foreach=True)
+            optimizer.step()
+            optimizer.zero_grad()
+        with counter.stage("update"):  # the weight average and the step's one read-back
+            policy.update()
+
+    def count(run, models: list[torch.nn.Module]) -> dict:
+        counter = LaunchCounter()
+        with device_code_paths(), ExitStack() as stack:
+            for model in models:
+                counter.label_modules(
+                    {
+                        "gmm": [m for name, m in model.named_modules() if name.endswith("global_stage")],
+                        "encoders": [m for m in model.modules() if isinstance(m, STAGES["encoders"])],
+                        "dit": [m for m in model.modules() if isinstance(m, DiT)],
+                    },
+                    stack,
+                )
+            with counter:
+                run(counter)
+        return counter.summary()
+
+    step(LaunchCounter())  # the first step also reads the weight average's step count once
+    training = count(step, [policy.model])
+    policy.eval()
+    obj, scene = batch[OBJECT_KEY][:1], batch[SCENE_KEY][:1]
+    policy.sample_goals(obj, scene, 10)  # the first call also makes the bf16 copy of the weights under AMP
+    sampling = count(lambda _: policy.sample_goals(obj, scene, 10), [policy._sampling_model()])
+    return {"training_step": training, "sample_k10": sampling}
 
 
 def flops(run) -> float:
@@ -250,34 +302,46 @@ def main() -> None:
     )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--output", default="results/speed.json")
+    parser.add_argument(
+        "--launches-only", action="store_true", help="count launches and syncs only (no timing: any machine, any load)"
+    )
     args = parser.parse_args()
     if args.dataset and not (args.dataset / "meta" / "info.json").is_file():
         parser.error(f"--dataset {args.dataset}: not a LeRobot dataset (no meta/info.json)")
     torch.set_num_threads(args.threads)
     overrides = parse_overrides(args.set)
 
-    peak = {
-        "fp32": matmul_gflops(torch.float32, 2048, args.repeats),
-        "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats),
-    }
+    peak = {}
+    if not args.launches_only:
+        peak = {
+            "fp32": matmul_gflops(torch.float32, 2048, args.repeats),
+            "bf16": matmul_gflops(torch.bfloat16, 2048, args.repeats),
+        }
     machine = machine_info()
     print(
         f"machine: {machine['cpu']} | {machine['cpu_count']} cores | torch {machine['torch']} | "
         f"{machine['torch_threads']} threads | load {machine['load_average_1min']:.1f}"
     )
-    print(f"matmul peak (2048^3): fp32 {peak['fp32']:.0f} GFLOP/s, bf16 {peak['bf16']:.0f} GFLOP/s")
+    if peak:
+        print(f"matmul peak (2048^3): fp32 {peak['fp32']:.0f} GFLOP/s, bf16 {peak['bf16']:.0f} GFLOP/s")
     results = []
     for name in args.models.split(","):
         fields = model_config(name, overrides)
-        row = {"model": name, "config": fields, "policy": policy_figures(fields, args)}
+        row = {"model": name, "config": fields, "launches": launch_figures(fields, args.batch_size)}
+        results.append(row)
+        print(f"{name} {json.dumps(fields)}")
+        for what, counted in row["launches"].items():
+            stages = ", ".join(f"{k} {v}" for k, v in counted["ops_by_stage"].items())
+            print(f"  launches, {what}: {counted['ops']} ops, {counted['syncs']} host syncs ({stages})")
+        if args.launches_only:
+            continue
+        row["policy"] = policy_figures(fields, args)
         p = row["policy"]
         precision = "bf16" if fields.get("use_amp") else "fp32"
         p["fraction_of_peak"] = p["achieved_gflops"] / peak[precision]
         if args.train_steps:
             row["lerobot_train"] = lerobot_train_figures(fields, args)
-        results.append(row)
         stages = ", ".join(f"{k} {1000 * v:.0f}" for k, v in p["stages_s"].items())
-        print(f"{name} {json.dumps(fields)}")
         print(
             f"  policy step {p['step_s']:.3f} s ({p['samples_per_s']:.1f} samples/s, "
             f"{p['gflop_per_sample']:.2f} GFLOP/sample, {p['achieved_gflops']:.0f} GFLOP/s = "
