@@ -20,8 +20,9 @@ leading `VAR=value` set aside as environment):
   (its `--root`, `--output_dir`, `--output` or `--out`).
 
 What this cannot see is a command that parses but fails when it runs. The converter block's commands run for
-real in `test_convert_samples.py`; the other programs run for real, on other command lines, in their own
-tests (`test_pretrain.py`, `test_lerobot_train.py`, `test_sim_harness.py`, ...).
+real in `test_convert_samples.py`, and the training block runs for real, shrunk by `shrink`, in the slow set;
+the other programs run for real, on other command lines, in their own tests (`test_pretrain.py`,
+`test_lerobot_train.py`, `test_sim_harness.py`, ...).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import contextlib
 import dataclasses
 import functools
 import io
+import os
 import re
 import runpy
 import shlex
@@ -258,3 +260,28 @@ def test_the_readme_has_commands_of_every_kind_the_rule_covers():
     """Guards the guard: a fence renamed to ```sh or a changed block layout would otherwise test nothing."""
     programs = {split_command(c.text)[0] for c in COMMANDS}
     assert {"make", "python", "lerobot-train", "lerobot-eval", "taxdpd-convert"} <= programs
+
+
+def shrink(text: str) -> str:
+    """A command cut to seconds: `--episodes` 4, `--trials` 2 and `--steps` 2 (given to a `lerobot-train` that
+    names none, which would run its recipe's budget), the rest as written."""
+    if "--steps" not in text:
+        text = text.replace("lerobot-train ", "lerobot-train --steps=2 ", 1)
+    text = re.sub(r"(--episodes[ =])\d+", r"\g<1>4", text)
+    return re.sub(r"(--(?:trials|steps)[ =])\d+", r"\g<1>2", text)
+
+
+@pytest.mark.slow
+def test_the_training_block_runs_for_real_shrunk(tmp_path):
+    """The README's "Train a goal predictor" block, each command shrunk (see `shrink`), run by bash in order in an
+    empty folder with this environment's programs first on PATH: demos, the CPU recipe, the fine-tune of its
+    checkpoint and the paper-size line all finish."""
+    heading = README.read_text().splitlines().index("### Train a goal predictor with LeRobot")
+    block = [c for c in COMMANDS if heading < c.line][:4]
+    assert [split_command(c.text)[0] for c in block] == ["python", "lerobot-train", "lerobot-train", "lerobot-train"]
+    environment = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    for command in block:
+        result = subprocess.run(
+            ["bash", "-c", shrink(command.text)], cwd=tmp_path, env=environment, capture_output=True, text=True
+        )
+        assert result.returncode == 0, f"README:{command.line}: {shrink(command.text)}\n{result.stderr[-4000:]}"
