@@ -81,3 +81,26 @@ def test_sampling_reads_back_at_most_twice():
     with device_code_paths(), counter:
         policy.sample_goals(torch.rand(1, 32, 3, generator=g) * 0.1, torch.rand(1, 64, 3, generator=g), 10)
     assert counter.total_syncs() <= 2, counter.syncs
+
+
+@pytest.mark.slow
+def test_a_compiled_policy_trains_samples_and_keeps_the_weights_names():
+    """compile_mode compiles the DiTs in place: a checkpoint of either kind loads into the other."""
+    eager, compiled = _small_policy(), _small_policy(compile_mode="default")
+    assert eager.state_dict().keys() == compiled.state_dict().keys()
+    compiled.load_state_dict(eager.state_dict())
+    g = torch.Generator().manual_seed(3)
+    obj, scene = torch.rand(2, 32, 3, generator=g) * 0.1, torch.rand(2, 64, 3, generator=g)
+    for policy in (eager, compiled):
+        policy.eval()
+    same = [p.sample_goals(obj, scene, 2, generator=torch.Generator().manual_seed(4)) for p in (eager, compiled)]
+    torch.testing.assert_close(same[1], same[0], rtol=1e-4, atol=1e-5)
+    compiled.train()
+    loss, _ = compiled.forward({OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.3})
+    loss.backward()
+    assert all(p.grad is not None for p in compiled.model.parameters())
+
+
+def test_an_unknown_compile_mode_is_refused_by_name():
+    with pytest.raises(ValueError, match="compile_mode"):
+        TaxDPDConfig(compile_mode="fast")

@@ -32,6 +32,7 @@ ENCODERS = ("pointnet2", "mlp")
 LOCAL_DIFFUSIONS = ("point", "se3")
 SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
+COMPILE_MODES = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 ROTATION_NOISES = ("paper", "signal")
 
 
@@ -135,6 +136,10 @@ class TaxDPDConfig(PreTrainedConfig):
     ema_power: float = 0.75
     ema_max_decay: float = 0.9999
 
+    # ---- speed: torch.compile of the DiTs and point encoders (None: eager). "default" uses inductor on the CPU;
+    # on a GPU "reduce-overhead" adds CUDA graphs. The weights' names do not change, so checkpoints load either way.
+    compile_mode: str | None = None
+
     # ---- optimisation (paper: AdamW 1e-4, wd 1e-5, warmup 100, cosine, clip 1.0)
     optimizer_lr: float = 1e-4
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
@@ -148,6 +153,8 @@ class TaxDPDConfig(PreTrainedConfig):
         super().__post_init__()
         if self.encoder not in ENCODERS:
             raise ValueError(f"encoder: must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.compile_mode not in COMPILE_MODES:
+            raise ValueError(f"compile_mode: must be one of {COMPILE_MODES}, got {self.compile_mode!r}")
         if self.local_diffusion not in LOCAL_DIFFUSIONS:
             raise ValueError(f"local_diffusion: must be one of {LOCAL_DIFFUSIONS}, got {self.local_diffusion!r}")
         if self.rotation_noise not in ROTATION_NOISES:

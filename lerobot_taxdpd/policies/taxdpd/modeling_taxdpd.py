@@ -52,6 +52,7 @@ from lerobot_taxdpd.policies.taxdpd.augmentation import (
 )
 from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig, check_inference_steps
 from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
+from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, cloud_layouts
@@ -169,6 +170,15 @@ class ModelFrame:
         return points.float() / self.scale + origin
 
 
+def compile_networks(module: nn.Module, mode: str) -> None:
+    """torch.compile, in place, every DiT below `module`: the blocks whose ops repeat in every step and every
+    denoising step. The point encoders stay eager (inductor, torch 2.10, fails on their dynamic shapes with a
+    stride assertion), as do farthest point sampling and the Python-level control flow."""
+    for sub in module.modules():
+        if isinstance(sub, DiT):
+            sub.compile(mode=mode)
+
+
 class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     """Goal predictor for object placement: samples where every object point must go.
 
@@ -186,6 +196,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             config.point_scale = estimate_point_scale(dataset_meta.root, config.object_scale)
         self.model = TaxDPDModel(config)
         self._init_ema()
+        if config.compile_mode is not None:
+            compile_networks(self, config.compile_mode)
         self.metrics: dict = {}
         self._warned_scale = False
         self._cast_model: tuple[tuple, nn.Module] | None = None
@@ -355,6 +367,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             for module in cast.modules():
                 if isinstance(module, nn.Linear):
                     module.to(torch.bfloat16)
+            if self.config.compile_mode is not None:
+                compile_networks(cast, self.config.compile_mode)
             self._cast_model = (key, cast)  # a tuple: not registered as a submodule, never saved
         return self._cast_model[1]
 
