@@ -86,11 +86,20 @@ BUNDLED = (
     "huggingface_hub",
 )
 AV_STAND_IN = '''"""Stand-in for PyAV, written by benchmarks/gpu_train.py: LeRobot imports `av` at import time and reads
-`av.logging`; datasets without video never call it."""
+`av.logging` (torchvision too); datasets without video never open one. Anything else is an ImportError, which
+torchvision takes as "no PyAV"."""
 
 import types
 
-logging = types.SimpleNamespace(WARNING=30, restore_default_callback=lambda: None, set_level=lambda level: None)
+logging = types.SimpleNamespace(
+    ERROR=16, WARNING=24, set_level=lambda level: None, restore_default_callback=lambda: None
+)
+
+
+def __getattr__(name):
+    if name.startswith("__"):
+        raise AttributeError(name)
+    raise ImportError(f"av.{name}: PyAV is not installed (this is a stand-in)")
 '''
 LOG_LINE = re.compile(r"updt_s:([\d.]+) data_s:([\d.]+)")
 STOP_GRACE_S = 30.0
