@@ -65,4 +65,4 @@ def test_recorded_commands_run_on_any_machine():
         "--episodes 5 --split train --repo-id local/insert_waterproof --root data/insert_waterproof"
     )
     assert train.startswith("lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path taxdpd_cpu) ")
-    assert "--dataset.root=data/insert_waterproof" in train and "--policy.start_yaw_range=30" in train
+    assert "--dataset.root=data/insert_waterproof" in train and "--policy.z_rotation_range=0" in train
