@@ -254,7 +254,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         for tensor, check in checks:
             check(values[start : start + tensor.numel()])
             start += tensor.numel()
-        terms.update(zip(terms, values[: len(terms)], strict=False))
+        terms.update(zip(terms, values[: len(terms)], strict=True))
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
