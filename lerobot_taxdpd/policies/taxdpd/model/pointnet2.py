@@ -156,19 +156,22 @@ class SetAbstraction(nn.Module):
     """Shared MLP on [p_j - c_i, f_j] over each ball, max-pooled.
 
     The first layer is linear in (p_j - c_i), so it is evaluated once per point and once per centroid
-    (W_x p_j + W_f f_j + b, minus W_x c_i) instead of once per (centroid, neighbour) pair.
+    (W_x p_j + W_f f_j + b, minus W_x c_i) instead of once per (centroid, neighbour) pair. The last ReLU is
+    applied after the pooling (max and ReLU commute), and the pooling keeps its argmax so that its backward
+    writes one value per ball instead of comparing every (centroid, neighbour) pair: the largest tensors of
+    the step, (B, M, K, C), pass through two fewer elementwise ops each way.
     """
 
     def __init__(self, in_channels: int, widths: Sequence[int]) -> None:
         super().__init__()
         self.first = nn.Linear(in_channels + 3, widths[0])
-        self.rest = _mlp(widths)
+        self.rest = _mlp(widths, final_activation=False)
 
     def forward(self, xyz: Tensor, features: Tensor, centres_xyz: Tensor, neighbors: Tensor) -> Tensor:
         per_point = self.first(torch.cat([xyz, features], -1))
         per_centre = F.linear(centres_xyz, self.first.weight[:, :3])
         grouped = gather_points(per_point, neighbors) - per_centre.unsqueeze(-2).to(per_point.dtype)
-        return self.rest(torch.relu(grouped)).amax(dim=-2)
+        return torch.relu(self.rest(torch.relu_(grouped)).max(dim=-2).values)
 
 
 class PointNet2Encoder(nn.Module):
