@@ -7,7 +7,7 @@ import torch
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_sample
+from lerobot_taxdpd.maths.geometry import device_code_paths, estimate_rigid_transform, farthest_point_sample
 from lerobot_taxdpd.reports.launches import LaunchCounter
 
 
@@ -81,6 +81,27 @@ def test_sampling_reads_back_at_most_twice():
     with device_code_paths(), counter:
         policy.sample_goals(torch.rand(1, 32, 3, generator=g) * 0.1, torch.rand(1, 64, 3, generator=g), 10)
     assert counter.total_syncs() <= 2, counter.syncs
+
+
+def test_poses_read_the_inputs_once_more_than_the_fit_needs():
+    """`predict_poses` checks its clouds once: its reads are sampling's plus RANSAC-SVD's own."""
+    policy = _small_policy().eval()
+    g = torch.Generator().manual_seed(2)
+    obj, scene = torch.rand(1, 32, 3, generator=g) * 0.1, torch.rand(1, 64, 3, generator=g)
+    goals = policy.sample_goals(obj, scene, 10)
+    counts = {}
+    for name, call in {
+        "poses": lambda: policy.predict_poses(obj, scene, 10),
+        "sampling": lambda: policy.sample_goals(obj, scene, 10),
+        "fit": lambda: estimate_rigid_transform(
+            obj.unsqueeze(1).expand_as(goals), goals, threshold=policy.config.ransac_threshold
+        ),
+    }.items():
+        counter = LaunchCounter()
+        with device_code_paths(), counter:
+            call()
+        counts[name] = counter.total_syncs()
+    assert counts["poses"] == counts["sampling"] + counts["fit"], counts
 
 
 @pytest.mark.slow

@@ -284,10 +284,30 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         Row i of each sample is where point i of the object should go. `num_inference_steps` and
         `sampler` ("ddim" or "ddpm") default to the config's; `generator` makes sampling reproducible.
         """
+        object_points, scene_points = self._checked_inputs(object_points, scene_points)
+        return self._sample_checked(
+            object_points,
+            scene_points,
+            num_samples,
+            num_inference_steps=num_inference_steps,
+            sampler=sampler,
+            generator=generator,
+        )
+
+    def _sample_checked(
+        self,
+        object_points: Tensor,
+        scene_points: Tensor,
+        num_samples: int,
+        *,
+        num_inference_steps: int | None = None,
+        sampler: str | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """`sample_goals` on clouds `_checked_inputs` returned: their values are read once per call, not twice."""
         if not isinstance(num_samples, numbers.Integral) or num_samples < 1:
             raise ValueError(f"num_samples: must be a positive integer, got {num_samples!r}")
         num_samples = int(num_samples)
-        object_points, scene_points = self._checked_inputs(object_points, scene_points)
         if generator is not None and not (
             isinstance(generator, torch.Generator) and generator.device.type == object_points.device.type
         ):
@@ -321,7 +341,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     ) -> Tensor:
         """SE(3) goal poses T (B, K, 4, 4) with goal = T @ object, fitted to sampled goals by RANSAC-SVD."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        goals = self.sample_goals(object_points, scene_points, num_samples, **sample_kwargs)
+        goals = self._sample_checked(object_points, scene_points, num_samples, **sample_kwargs)
         source = object_points.unsqueeze(1).expand_as(goals)
         transforms, _ = estimate_rigid_transform(
             source,
