@@ -93,6 +93,29 @@ def test_sampling_is_reproducible_with_a_generator_and_translation_equivariant_i
     assert torch.allclose(moved - shift, first, atol=1e-3)  # works in the scene's own frame
 
 
+def test_given_placement_frames_replace_the_dense_gmm_and_move_with_the_scene():
+    policy = tiny_policy()
+    obj, scene = clouds()
+    frames = scene.mean(1) + torch.tensor([0.05, 0.0, 0.02])
+    seeded = dict(generator=torch.Generator().manual_seed(3), placement_frames=frames)
+    first = policy.sample_goals(obj, scene, 2, **seeded)
+    shift = torch.tensor([10.0, -4.0, 2.0])
+    seeded = dict(generator=torch.Generator().manual_seed(3), placement_frames=frames + shift)
+    torch.testing.assert_close(policy.sample_goals(obj + shift, scene + shift, 2, **seeded) - shift, first, atol=1e-3,
+                               rtol=0)  # fmt: skip
+    with torch.no_grad():  # a broken GMM no longer matters: the frames are given
+        for parameter in policy.model.global_stage.parameters():
+            parameter.fill_(float("nan"))
+    assert torch.isfinite(policy.sample_goals(obj, scene, 2, placement_frames=frames)).all()
+    assert torch.isfinite(policy.predict_poses(obj, scene, 2, placement_frames=frames)).all()
+    with pytest.raises(RuntimeError, match="multinomial"):  # and without frames, the GMM is what samples them
+        policy.sample_goals(obj, scene, 2)
+    with pytest.raises(PointCloudError, match=r"placement_frames: expected shape \(2, 3\), one per scene"):
+        policy.sample_goals(obj, scene, 1, placement_frames=frames[:1])
+    with pytest.raises(PointCloudError, match="placement_frames: NaN or infinite"):
+        policy.predict_poses(obj, scene, 1, placement_frames=frames * float("nan"))
+
+
 def test_clouds_denser_than_the_network_are_reduced_and_answered_for_every_point():
     policy = tiny_policy()  # the network sees N_O / N_S points
     g = torch.Generator().manual_seed(5)

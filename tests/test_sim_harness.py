@@ -171,6 +171,22 @@ def test_command_line_eval_writes_the_report(tmp_path):
     assert (tmp_path / "figures" / "insert_dsub25_seed0_samples.png").exists()
 
 
+def test_true_placement_frames_measure_the_local_stage_of_a_shipped_predictor(tmp_path, capsys):
+    """At the demonstrated goal's centroid the shipped connector's samples land where the true goal is; the
+    report says which frames it was made with, and the option is refused where it cannot apply."""
+    base = ["eval", "--task", "insert_waterproof", "--trials", "2", "--num-samples", "2", "--figures", "0"]
+    output = tmp_path / "true_frames"
+    assert main([*base, "--goal-policy.path", "insert_waterproof", "--placement-frames", "true", "--output",
+                 str(output)]) == 0  # fmt: skip
+    report = json.loads((output / "insert_waterproof_eval.json").read_text())
+    assert report["placement_frames"] == "true"
+    assert report["translation_error_mm"]["median"] < 2.0  # the connector's sockets are 0.6 mm wide
+    assert main([*base, "--predictor", "oracle", "--placement-frames", "true", "--output", str(tmp_path)]) == 1
+    assert "--placement-frames: only applies to a TAX-DPD goal predictor" in capsys.readouterr().err
+    assert main(["eval", "--task", "cloth_hang", "--placement-frames", "true", "--output", str(tmp_path)]) == 1
+    assert "--placement-frames: only applies to a rigid task" in capsys.readouterr().err
+
+
 def test_command_line_errors_name_the_argument(tmp_path, capsys):
     assert (
         main(

@@ -29,6 +29,7 @@ CLOTH_TASK = "cloth_hang"
 OUTPUT = {"rigid": Path("outputs/sim_eval"), CLOTH_TASK: Path("outputs/eval/cloth_hang")}
 RIGID_ONLY = {
     "predictor": "--predictor",
+    "placement_frames": "--placement-frames",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
 }
@@ -128,6 +129,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--predictor",
         help="instead of --goal-policy.path: 'oracle' (ground truth, checks the benchmark itself) or "
         "'package.module:factory' returning an object with sample_goals(object_points, scene_points, num_samples)",
+    )
+    rigid.add_argument(
+        "--placement-frames",
+        choices=("true",),
+        default=None,
+        help="--goal-policy.path only: 'true' samples every goal at the true placement frame (the demonstrated "
+        "goal's centroid) instead of the Dense GMM's, to measure the local stage alone (default: the GMM's)",
     )
     rigid.add_argument("--oracle-error-mm", type=float, default=None, help="oracle only: translation error to add")
     rigid.add_argument("--oracle-error-deg", type=float, default=None, help="oracle only: rotation error to add")
@@ -325,7 +333,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.reports.benchmarking import write_json
     from lerobot_taxdpd.sim.harness import evaluate
-    from lerobot_taxdpd.sim.predictors import OraclePredictor, load_predictor
+    from lerobot_taxdpd.sim.predictors import OraclePredictor, TrueFramePredictor, load_predictor
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
@@ -340,6 +348,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     oracle_error_mm, oracle_error_deg = args.oracle_error_mm or 0.0, args.oracle_error_deg or 0.0
     if not oracle and (oracle_error_mm or oracle_error_deg):
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
+    if args.placement_frames and not goal_policy_path:
+        raise ValueError("--placement-frames: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
+    if oracle or args.placement_frames:
+        trials = [make_trial(task, seed, args.split) for seed in seeds]
     if oracle:
         trials = [make_trial(task, seed, args.split) for seed in seeds]
         predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
@@ -351,9 +363,11 @@ def _evaluate(args: argparse.Namespace) -> int:
                 f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
         _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
+        if args.placement_frames:
+            predictor = TrueFramePredictor(predictor, trials)
     else:
         predictor = load_predictor(args.predictor)
-    if not oracle:
+    if not (oracle or args.placement_frames):
         trials = (make_trial(task, seed, args.split) for seed in seeds)
     output = args.output or OUTPUT["rigid"]
     report = evaluate(
@@ -366,6 +380,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         total=args.trials,
     )
     report["predictor"] = goal_policy_path or args.predictor
+    if args.placement_frames:
+        report["placement_frames"] = args.placement_frames
     path = write_json(output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(

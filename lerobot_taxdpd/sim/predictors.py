@@ -144,6 +144,33 @@ class OraclePredictor:
         return torch.from_numpy(np.stack(batch).astype(np.float32))
 
 
+class TrueFramePredictor:
+    """A TAX-DPD predictor sampling at the true placement frame: each sample's frame is the centroid of the
+    demonstrated goal of a known trial instead of a Dense GMM sample, so its errors are the local stage's alone.
+    Beside the same predictor's own results, it splits the error between where the object goes (the GMM) and
+    how it is placed there (the local diffusion)."""
+
+    def __init__(self, predictor, trials: Iterable[Trial]):
+        self.predictor = predictor
+        self._centroids = {
+            _cloud_key(t.object_points): transform_points(t.goal_transform, t.object_points.astype(np.float64)).mean(0)
+            for t in trials
+        }
+
+    def sample_goals(
+        self, object_points: Tensor, scene_points: Tensor, num_samples: int, generator: torch.Generator | None = None
+    ) -> Tensor:
+        frames = []
+        for cloud in torch.as_tensor(object_points).detach().cpu().numpy():
+            centroid = self._centroids.get(_cloud_key(cloud))
+            if centroid is None:
+                raise ValueError("TrueFramePredictor: object_points do not belong to any trial it was built from")
+            frames.append(centroid)
+        return self.predictor.sample_goals(
+            object_points, scene_points, num_samples, generator=generator, placement_frames=np.stack(frames)
+        )
+
+
 def load_predictor(spec: str) -> GoalPredictor:
     """`package.module:factory` -> factory(), for baselines outside this package (goal or pose predictors)."""
     module_name, _, attribute = spec.partition(":")

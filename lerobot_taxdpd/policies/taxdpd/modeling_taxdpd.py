@@ -127,12 +127,16 @@ class TaxDPDModel(nn.Module):
         *,
         eta: float = 0.0,
         generator: torch.Generator | None = None,
+        frames: Tensor | None = None,
     ) -> Tensor:
-        """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3)."""
+        """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3). `frames` (B, 3), when given, are the
+        placement frames of every sample instead of the Dense GMM's."""
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
         layouts = cloud_layouts(self.config, object_centred, scene_points)  # one FPS pass serves both stages
-        if self.global_stage is not None:
+        if frames is not None:
+            frames = frames.to(scene_points).unsqueeze(1).expand(b, num_samples, 3)
+        elif self.global_stage is not None:
             logits, means = self._gmm(object_points, scene_points, layouts)
             probabilities = torch.softmax(logits.float(), -1)
             if generator is not None:
@@ -277,12 +281,15 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         num_inference_steps: int | None = None,
         sampler: str | None = None,
         generator: torch.Generator | None = None,
+        placement_frames=None,
     ) -> Tensor:
         """Sample goal clouds: object (B, N_O, 3), scene (B, N_S, 3) in metres -> (B, K, N_O, 3).
 
         Tensors or numpy arrays are accepted; the answer is a float32 tensor on the policy's device.
         Row i of each sample is where point i of the object should go. `num_inference_steps` and
         `sampler` ("ddim" or "ddpm") default to the config's; `generator` makes sampling reproducible.
+        `placement_frames` (B, 3), metres: where the object's centroid goes, given instead of sampled from
+        the Dense GMM, so the local stage alone is measured (e.g. at the true goal's centroid).
         """
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
         return self._sample_checked(
@@ -292,6 +299,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             num_inference_steps=num_inference_steps,
             sampler=sampler,
             generator=generator,
+            placement_frames=self._checked_frames(placement_frames, object_points),
         )
 
     def _sample_checked(
@@ -303,6 +311,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         num_inference_steps: int | None = None,
         sampler: str | None = None,
         generator: torch.Generator | None = None,
+        placement_frames: Tensor | None = None,
     ) -> Tensor:
         """`sample_goals` on clouds `_checked_inputs` returned: their values are read once per call, not twice."""
         if not isinstance(num_samples, numbers.Integral) or num_samples < 1:
@@ -321,6 +330,9 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         model_object = self._at_model_resolution(object_points, self.config.num_object_points)
         model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
+        if placement_frames is not None:  # where the object's centroid goes -> where the model's subsample's goes
+            shift = model_object.mean(1) - object_points.mean(1)
+            placement_frames = frame.to_model((placement_frames + shift).unsqueeze(1)).squeeze(1)
         with self._autocast():
             goals = self._sampling_model().sample(
                 frame.to_model(model_object),
@@ -329,6 +341,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 steps,
                 eta=eta,
                 generator=generator,
+                frames=placement_frames,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
@@ -341,6 +354,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     ) -> Tensor:
         """SE(3) goal poses T (B, K, 4, 4) with goal = T @ object, fitted to sampled goals by RANSAC-SVD."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
+        if "placement_frames" in sample_kwargs:
+            sample_kwargs["placement_frames"] = self._checked_frames(sample_kwargs["placement_frames"], object_points)
         goals = self._sample_checked(object_points, scene_points, num_samples, **sample_kwargs)
         source = object_points.unsqueeze(1).expand_as(goals)
         transforms, _ = estimate_rigid_transform(
@@ -475,6 +490,19 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             )
         device = next(self.parameters()).device
         return object_points.to(device, torch.float32), scene_points.to(device, torch.float32)
+
+    def _checked_frames(self, placement_frames, object_points: Tensor) -> Tensor | None:
+        if placement_frames is None:
+            return None
+        frames = torch.as_tensor(placement_frames)
+        if frames.shape != (object_points.shape[0], 3):
+            raise PointCloudError(
+                f"placement_frames: expected shape ({object_points.shape[0]}, 3), one per scene, got "
+                f"{tuple(frames.shape)}"
+            )
+        if not torch.isfinite(frames).all():
+            raise PointCloudError("placement_frames: NaN or infinite coordinates")
+        return frames.to(object_points)
 
     def _checked_goal(self, goal_points, object_points: Tensor, check_values: bool = True) -> Tensor:
         if goal_points is None:
