@@ -40,6 +40,10 @@ class BookShelfTask(PlacementTask):
     point_count_key = "book_on_bookshelf_double_view_rnd_ori"
     multi_modal = True
     symmetry_period_deg = 180.0  # turned around, it occupies the same space
+    # As for the mugs: the demos start the book at every yaw, and its box symmetries make a turned start look
+    # like another start, so a random start yaw makes the target one of four; without it the rotation error
+    # halves and coverage@10 rises 0.03 -> 0.43 (success stays bounded by translation; docs/taxdpd.md).
+    training_flags = ("--policy.start_yaw_range=0",)
     perturbation = (0.02, 15.0)
     coverage_threshold = 0.02
     approach_distance = 0.30

@@ -49,6 +49,11 @@ class MugRackTask(PlacementTask):
     symmetry_period_deg = 180.0  # hung facing either way
     perturbation = (0.02, 15.0)
     coverage_threshold = 0.02
+    # The demos start the mug at every yaw already, and the goal has two valid facings: turning the object alone
+    # (start-yaw augmentation) decouples the demonstrated facing from the start the network sees, so the same
+    # view gets either facing as its target. Without it, held-out seeds 1000-1099: 39% -> 71%, rotation
+    # 16.8 -> 6.2 deg (docs/taxdpd.md, "Symmetric goals and the start-yaw augmentation").
+    training_flags = ("--policy.start_yaw_range=0",)
 
     def __init__(self, name: str, num_racks: int, pegs_per_rack: int, point_count_key: str, description: str):
         self.name = name
