@@ -4,6 +4,9 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 DEMO_ARGS ?=
+# Parallel test workers, one torch thread each (sized for a two-core machine; more pay little, the
+# orientation learning test alone takes most of the run).
+TEST_WORKERS ?= 2
 
 .PHONY: install demo lint test test-all bench clean
 
@@ -24,7 +27,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 test: lint
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist worksteal
 
 test-all: $(STAMP)
 	$(PY) -m pytest -m "slow or not slow"

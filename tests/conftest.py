@@ -21,6 +21,10 @@ os.environ["HF_LEROBOT_HOME"] = str(_HF_HOME / "lerobot")
 os.environ["HF_HUB_OFFLINE"] = "1"
 os.environ["WANDB_MODE"] = "disabled"
 os.environ.setdefault("MPLBACKEND", "Agg")
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # Parallel workers (`make test` runs two) take one torch thread each, and so do the processes they start:
+    # two jobs of two threads each on a two-core machine run about ten times slower than one of one.
+    os.environ["OMP_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = "1"
 
 BIN = Path(sys.executable).parent
 
@@ -77,3 +81,8 @@ def hf_home() -> Path:
 def cli():
     """`run_cli` as a fixture (a dependency installs its own top-level `tests` package, so don't import it)."""
     return run_cli
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Tests marked `long` (minutes each) start first, so that parallel workers share the rest while they run."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)

@@ -93,11 +93,13 @@ def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
 
 
 def test_a_task_trains_with_its_own_flags_and_the_users_win():
-    """Insertion keeps the plug's yaw augmentation narrow (one grasp yaw in every scene); a user's flag overrides it."""
+    """Insertion drops the plug's yaw augmentation (one grasp yaw in every scene), the mugs theirs (symmetric goals,
+    demos at every start yaw); a user's flag overrides a task's."""
     flags = training_flags(get_task("insert_waterproof"), 500, ["--policy.start_yaw_range=5"])
     assert flags[0] == "--steps=500"
     config = draccus.parse(
         config_class=TaxDPDConfig, args=[flag.replace("--policy.", "--") for flag in flags[1:]]
     )  # the same parser lerobot-train uses, which keeps the last of repeated flags
     assert (config.start_yaw_range, config.start_tilt_range) == (5.0, 15.0)
-    assert training_flags(get_task("mug_easyrack"), None, []) == []  # the recipe's full-yaw default stands
+    assert training_flags(get_task("mug_easyrack"), None, []) == ["--policy.start_yaw_range=0"]
+    assert training_flags(get_task("can_cabinet"), None, []) == []  # the recipe's full-yaw default stands

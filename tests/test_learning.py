@@ -95,6 +95,7 @@ def train_and_check(cli, tmp_path, budget: str) -> None:
     assert abs(turns["object_tilt"]) < tolerance, "tilting the box alone must not tilt its goal"
 
 
+@pytest.mark.long
 def test_orientation_is_learnt_through_lerobot_train(cli, tmp_path):
     train_and_check(cli, tmp_path, "ci")
 
