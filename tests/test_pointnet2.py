@@ -14,9 +14,8 @@ def textbook_set_abstraction(layer: SetAbstraction, xyz, features, centres, neig
     """The per-pair form: an MLP with a ReLU after every layer on [p_j - c_i, f_j] of each ball, max-pooled."""
     relative = gather_points(xyz, neighbors) - centres.unsqueeze(-2)
     hidden = torch.cat([relative, gather_points(features, neighbors)], -1)
-    for module in (layer.first, *layer.rest):
-        hidden = module(hidden) if isinstance(module, torch.nn.Linear) else hidden
-        hidden = torch.relu(hidden)
+    for linear in (layer.first, *(m for m in layer.rest if isinstance(m, torch.nn.Linear))):
+        hidden = torch.relu(linear(hidden))
     return hidden.amax(dim=-2)
 
 

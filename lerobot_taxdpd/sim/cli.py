@@ -350,10 +350,10 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
     if args.placement_frames and not goal_policy_path:
         raise ValueError("--placement-frames: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
-    if oracle or args.placement_frames:
-        trials = [make_trial(task, seed, args.split) for seed in seeds]
+    trials = (make_trial(task, seed, args.split) for seed in seeds)
+    if oracle or args.placement_frames:  # both answer from the trials' ground truth, so they need them first
+        trials = list(trials)
     if oracle:
-        trials = [make_trial(task, seed, args.split) for seed in seeds]
         predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
     elif goal_policy_path:
         try:
@@ -367,8 +367,6 @@ def _evaluate(args: argparse.Namespace) -> int:
             predictor = TrueFramePredictor(predictor, trials)
     else:
         predictor = load_predictor(args.predictor)
-    if not (oracle or args.placement_frames):
-        trials = (make_trial(task, seed, args.split) for seed in seeds)
     output = args.output or OUTPUT["rigid"]
     report = evaluate(
         predictor,

@@ -89,6 +89,17 @@ def _cloud_key(points: np.ndarray) -> str:
     return hashlib.sha1(np.ascontiguousarray(points, dtype=np.float32).tobytes()).hexdigest()
 
 
+def _per_trial(table: dict, object_points: Tensor, owner: str) -> list:
+    """`table`'s entry for each object cloud of the batch, the trials being recognised by their object cloud."""
+    entries = []
+    for cloud in torch.as_tensor(object_points).detach().cpu().numpy():
+        entry = table.get(_cloud_key(cloud))
+        if entry is None:
+            raise ValueError(f"{owner}: object_points do not belong to any trial it was built from")
+        entries.append(entry)
+    return entries
+
+
 class OraclePredictor:
     """Ground-truth goals of known trials, with an optional rigid error of exactly the given size.
 
@@ -136,10 +147,7 @@ class OraclePredictor:
 
     def sample_goals(self, object_points: Tensor, scene_points: Tensor, num_samples: int) -> Tensor:
         batch = []
-        for cloud in torch.as_tensor(object_points).detach().cpu().numpy():
-            goals = self._goals.get(_cloud_key(cloud))
-            if goals is None:
-                raise ValueError("OraclePredictor: object_points do not belong to any trial it was built from")
+        for goals in _per_trial(self._goals, object_points, "OraclePredictor"):
             batch.append(np.stack([self._perturb(goals[k % len(goals)]) for k in range(num_samples)]))
         return torch.from_numpy(np.stack(batch).astype(np.float32))
 
@@ -160,14 +168,9 @@ class TrueFramePredictor:
     def sample_goals(
         self, object_points: Tensor, scene_points: Tensor, num_samples: int, generator: torch.Generator | None = None
     ) -> Tensor:
-        frames = []
-        for cloud in torch.as_tensor(object_points).detach().cpu().numpy():
-            centroid = self._centroids.get(_cloud_key(cloud))
-            if centroid is None:
-                raise ValueError("TrueFramePredictor: object_points do not belong to any trial it was built from")
-            frames.append(centroid)
+        frames = np.stack(_per_trial(self._centroids, object_points, "TrueFramePredictor"))
         return self.predictor.sample_goals(
-            object_points, scene_points, num_samples, generator=generator, placement_frames=np.stack(frames)
+            object_points, scene_points, num_samples, generator=generator, placement_frames=frames
         )
 
 

@@ -136,8 +136,9 @@ class TaxDPDConfig(PreTrainedConfig):
     ema_power: float = 0.75
     ema_max_decay: float = 0.9999
 
-    # ---- speed: torch.compile of the DiTs and point encoders (None: eager). "default" uses inductor on the CPU;
-    # on a GPU "reduce-overhead" adds CUDA graphs. The weights' names do not change, so checkpoints load either way.
+    # ---- speed: torch.compile of the DiTs (None: eager; the point encoders stay eager, see compile_networks).
+    # "default" uses inductor on the CPU; on a GPU "reduce-overhead" adds CUDA graphs. The weights' names do not
+    # change, so checkpoints load either way.
     compile_mode: str | None = None
 
     # ---- optimisation (paper: AdamW 1e-4, wd 1e-5, warmup 100, cosine, clip 1.0)

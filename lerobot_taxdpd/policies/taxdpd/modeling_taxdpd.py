@@ -299,7 +299,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             num_inference_steps=num_inference_steps,
             sampler=sampler,
             generator=generator,
-            placement_frames=self._checked_frames(placement_frames, object_points),
+            placement_frames=placement_frames,
         )
 
     def _sample_checked(
@@ -311,12 +311,13 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         num_inference_steps: int | None = None,
         sampler: str | None = None,
         generator: torch.Generator | None = None,
-        placement_frames: Tensor | None = None,
+        placement_frames=None,
     ) -> Tensor:
         """`sample_goals` on clouds `_checked_inputs` returned: their values are read once per call, not twice."""
         if not isinstance(num_samples, numbers.Integral) or num_samples < 1:
             raise ValueError(f"num_samples: must be a positive integer, got {num_samples!r}")
         num_samples = int(num_samples)
+        placement_frames = self._checked_frames(placement_frames, object_points)
         if generator is not None and not (
             isinstance(generator, torch.Generator) and generator.device.type == object_points.device.type
         ):
@@ -354,8 +355,6 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     ) -> Tensor:
         """SE(3) goal poses T (B, K, 4, 4) with goal = T @ object, fitted to sampled goals by RANSAC-SVD."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        if "placement_frames" in sample_kwargs:
-            sample_kwargs["placement_frames"] = self._checked_frames(sample_kwargs["placement_frames"], object_points)
         goals = self._sample_checked(object_points, scene_points, num_samples, **sample_kwargs)
         source = object_points.unsqueeze(1).expand_as(goals)
         transforms, _ = estimate_rigid_transform(
