@@ -10,7 +10,8 @@ config are printed beside the figures and written to JSON.
 Launches: the kernel-launching aten ops and host syncs of one training step (as lerobot-train runs it:
 forward, backward, gradient clipping, the optimizer, `update()`) and of one K = 10 sampling call, by stage,
 counted with every CPU-only shortcut on its device path, so the figures are what a GPU would launch
-(`lerobot_taxdpd.reports.launches`). They do not depend on the machine or its load.
+(`lerobot_taxdpd.reports.launches`), on clouds of the size the datasets record (`RECORDED_POINTS`), so that
+the step's reduction to the network's point count is counted too. They do not depend on the machine or its load.
 
     python benchmarks/speed.py                                  # results/speed.json
     python benchmarks/speed.py --models cpu --repeats 7 --threads 2
@@ -53,6 +54,9 @@ from lerobot_taxdpd.reports.launches import LaunchCounter
 # The authors' development code on this CPU (2 threads, idle; batch 16, 512/1024 points), for comparison.
 REFERENCE = {"local_step_s": 2.24, "gmm_step_s": 3.92, "both_steps_s": 6.16, "sample_k10_s": 48.1}
 PAPER = dict(hidden_dim=128, num_blocks=5, num_heads=4, max_neighbors=64, num_object_points=512, num_scene_points=1024)
+# The clouds as the datasets record them, which is how lerobot-train feeds the step (a larger cloud is reduced in
+# it): the procedural tasks record 512 / 512 points, RPDiff conversions the paper's counts.
+RECORDED_POINTS = {"cpu": (512, 512), "paper": (512, 1024)}
 STAGES = {"gmm": "global_stage", "encoders": (PointNet2Encoder, PointMLPEncoder), "dit": DiT}
 
 
@@ -134,13 +138,14 @@ def breakdown(step, repeats: int) -> dict[str, float]:
     }
 
 
-def launch_figures(fields: dict, batch_size: int) -> dict:
-    """Launches and host syncs of one training step (after a first one) and of one K = 10 sampling call."""
+def launch_figures(fields: dict, batch_size: int, cloud_sizes: tuple[int, int]) -> dict:
+    """Launches and host syncs of one training step (after a first one) and of one K = 10 sampling call, on
+    clouds of `cloud_sizes` (object, scene) points, as recorded."""
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
     policy = TaxDPDPolicy(config).train()
     optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
-    batch = slot_batch(batch_size, config.num_object_points, config.num_scene_points)
+    batch = slot_batch(batch_size, *cloud_sizes)
 
     def step(counter: LaunchCounter) -> None:
         with counter.stage("forward"):
@@ -327,9 +332,12 @@ def main() -> None:
     results = []
     for name in args.models.split(","):
         fields = model_config(name, overrides)
-        row = {"model": name, "config": fields, "launches": launch_figures(fields, args.batch_size)}
+        recorded = RECORDED_POINTS.get(name, (fields["num_object_points"], fields["num_scene_points"]))
+        launches = launch_figures(fields, args.batch_size, recorded)
+        row = {"model": name, "config": fields, "recorded_points": recorded, "launches": launches}
         results.append(row)
         print(f"{name} {json.dumps(fields)}")
+        print(f"  clouds as recorded: {recorded[0]} / {recorded[1]} points (object / scene)")
         for what, counted in row["launches"].items():
             stages = ", ".join(f"{k} {v}" for k, v in counted["ops_by_stage"].items())
             print(f"  launches, {what}: {counted['ops']} ops, {counted['syncs']} host syncs ({stages})")

@@ -49,8 +49,9 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
     """Batched farthest point sampling: (..., N, 3) -> indices (..., num_samples), in selection order.
 
     Deterministic: starts from `start_index` (default point 0). On the CPU each cloud goes through
-    fpsample's exact FPS (the same indices as the device loop, 2-7x faster at the model's sizes);
-    elsewhere a loop sequential over samples and vectorised over the batch (five ops a sample).
+    fpsample's exact FPS (2-7x faster at the model's sizes; the device loop's points, in its order up to swaps
+    at float near-ties); elsewhere a loop sequential over samples and vectorised over the batch (see
+    `_farthest_point_loop`).
     """
     batch_shape = points.shape[:-2]
     n = points.shape[-2]
@@ -71,35 +72,56 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
     return _farthest_point_loop(flat, num_samples, starts.to(points.device)).reshape(*batch_shape, num_samples)
 
 
+#: The largest pairwise-distance table (bytes) that farthest point sampling off the CPU builds to save launches.
+FPS_DISTANCE_TABLE_BYTES = 2**30
+
+
 def _farthest_point_loop(flat: Tensor, num_samples: int, current: Tensor) -> Tensor:
-    """(B, N, 3) -> (B, num_samples) from start indices `current` (B,): a loop of five ops a sample, the indices
-    stacked once at the end."""
+    """(B, N, 3) -> (B, num_samples) from start indices `current` (B,), sequential over samples. With the
+    (B, N, N) distances built once (when they fit in `FPS_DISTANCE_TABLE_BYTES`), a sample is three ops (a
+    row of the table, the running minimum, its argmax) instead of five; the indices are stacked at the end."""
+    b, n, _ = flat.shape
+    table = None
+    if b * n * n * flat.element_size() <= FPS_DISTANCE_TABLE_BYTES:
+        table = torch.cdist(flat, flat, compute_mode="donot_use_mm_for_euclid_dist")  # exact, as the loop
     nearest = torch.full(flat.shape[:2], float("inf"), dtype=flat.dtype, device=flat.device)
     chosen = []
     for i in range(num_samples):
         chosen.append(current)
         if i == num_samples - 1:
             break
-        centre = flat.gather(1, current.view(-1, 1, 1).expand(-1, 1, flat.shape[-1]))
-        nearest = torch.minimum(nearest, torch.linalg.vector_norm(flat - centre, dim=-1))
+        if table is not None:
+            distances = table.gather(1, current.view(-1, 1, 1).expand(-1, 1, n)).squeeze(1)
+        else:
+            centre = flat.gather(1, current.view(-1, 1, 1).expand(-1, 1, flat.shape[-1]))
+            distances = torch.linalg.vector_norm(flat - centre, dim=-1)
+        nearest = torch.minimum(nearest, distances)
         current = nearest.argmax(-1)
     return torch.stack(chosen, 1)
 
 
-def farthest_point_sample_parts(parts: list[Tensor], counts: list[int]) -> list[Tensor]:
-    """FPS of several batched clouds at once, each from its point 0: parts[i] (B, N_i, 3) -> (B, counts[i]).
+def farthest_point_sample_parts(
+    parts: list[Tensor], counts: list[int], starts: list[Tensor] | None = None
+) -> list[Tensor]:
+    """FPS of several batched clouds at once: parts[i] (B, N_i, 3) -> (B, counts[i]), each from `starts[i]` (B,)
+    (default: point 0).
 
-    Off the CPU, all parts go through one loop (each padded with copies of its first point, which are never
+    Off the CPU, all parts go through one loop (each padded with copies of its start point, which are never
     farther than any other point), so the number of ops follows the largest count, not the sum of them."""
+    if starts is None:
+        starts = [torch.zeros(part.shape[0], dtype=torch.long, device=part.device) for part in parts]
     if parts[0].device.type == "cpu" and not _DEVICE_CODE_PATHS.get():
-        return [farthest_point_sample(part, count) for part, count in zip(parts, counts, strict=True)]
+        return [farthest_point_sample(p, count, start) for p, count, start in zip(parts, counts, starts, strict=True)]
     for part, count in zip(parts, counts, strict=True):
         if count > part.shape[1]:
             raise ValueError(f"cannot sample {count} points from a cloud of {part.shape[1]}")
     n = max(part.shape[1] for part in parts)
-    padded = torch.cat([torch.cat([p.detach(), p[:, :1].detach().expand(-1, n - p.shape[1], -1)], 1) for p in parts])
-    starts = torch.zeros(padded.shape[0], dtype=torch.long, device=padded.device)
-    indices = _farthest_point_loop(padded, max(counts), starts).split(parts[0].shape[0])
+    padded = []
+    for part, start in zip(parts, starts, strict=True):
+        first = gather_points(part.detach(), start.view(-1, 1).to(part.device))
+        padded.append(torch.cat([part.detach(), first.expand(-1, n - part.shape[1], -1)], 1))
+    firsts = torch.cat([start.to(parts[0].device) for start in starts])
+    indices = _farthest_point_loop(torch.cat(padded), max(counts), firsts).split(parts[0].shape[0])
     return [chosen[:, :count] for chosen, count in zip(indices, counts, strict=True)]
 
 

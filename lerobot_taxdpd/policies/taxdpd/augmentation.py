@@ -8,7 +8,7 @@ import math
 import torch
 from torch import Tensor
 
-from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, farthest_point_sample, rotation_about_z
+from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, farthest_point_sample_parts, rotation_about_z
 
 
 def _uniform(batch: int, like: Tensor, generator: torch.Generator | None) -> Tensor:
@@ -84,9 +84,14 @@ def ball_cut(points: Tensor, probability: float, generator: torch.Generator | No
     return refill_indices(~apply | (_rank(distance) >= num_removed.unsqueeze(1)), n, generator)
 
 
-def downsample_indices(points: Tensor, num_points: int, generator: torch.Generator | None = None) -> Tensor:
-    """Farthest point sampling from a random start, so repeated epochs see different subsets."""
-    b, n, _ = points.shape
-    device = generator.device if generator is not None else points.device
-    start = torch.randint(0, n, (b,), generator=generator, device=device).to(points.device)
-    return farthest_point_sample(points.float(), num_points, start_index=start)
+def downsample_indices(
+    clouds: list[Tensor], num_points: list[int], generator: torch.Generator | None = None
+) -> list[Tensor]:
+    """Farthest point sampling of each cloud (B, N_i, 3) to `num_points[i]`, from a random start, so repeated
+    epochs see different subsets; one FPS pass for all clouds. The indices come in selection order, so the
+    clouds they pick are in FPS order from their point 0."""
+    device = generator.device if generator is not None else clouds[0].device
+    starts = [
+        torch.randint(0, c.shape[1], (c.shape[0],), generator=generator, device=device).to(c.device) for c in clouds
+    ]
+    return farthest_point_sample_parts([c.float() for c in clouds], num_points, starts)

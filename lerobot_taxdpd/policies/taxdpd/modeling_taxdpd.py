@@ -35,7 +35,7 @@ from lerobot_taxdpd.data.validation import (
 )
 from lerobot_taxdpd.maths.geometry import (
     estimate_rigid_transform,
-    farthest_point_sample,
+    farthest_point_sample_parts,
     gather_points,
     lift_point_motion,
     nearest_indices,
@@ -90,11 +90,19 @@ class TaxDPDModel(nn.Module):
         object_centroid = object_points.mean(1)
         return self.global_stage(object_points - object_centroid.unsqueeze(1), scene_points, object_centroid, layouts)
 
-    def compute_loss(self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor) -> dict[str, Tensor]:
+    def compute_loss(
+        self,
+        object_points: Tensor,
+        scene_points: Tensor,
+        goal_points: Tensor,
+        *,
+        fps_ordered: tuple[bool, bool] = (False, False),
+    ) -> dict[str, Tensor]:
+        """`fps_ordered`: whether the object and the scene clouds are in FPS order from their point 0 already."""
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
         object_centred = object_points - object_points.mean(1, keepdim=True)
-        layouts = cloud_layouts(self.config, object_centred, scene_points)  # one FPS pass serves both stages
+        layouts = cloud_layouts(self.config, object_centred, scene_points, fps_ordered)  # serves both stages
         if self.global_stage is not None:
             # The Dense GMM learns from the first part of the (shuffled) batch only: it converges long before
             # the local stage, so the rest of its share of the step is better spent on the local stage.
@@ -128,12 +136,13 @@ class TaxDPDModel(nn.Module):
         eta: float = 0.0,
         generator: torch.Generator | None = None,
         frames: Tensor | None = None,
+        fps_ordered: tuple[bool, bool] = (False, False),
     ) -> Tensor:
         """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3). `frames` (B, 3), when given, are the
-        placement frames of every sample instead of the Dense GMM's."""
+        placement frames of every sample instead of the Dense GMM's; `fps_ordered` as in `compute_loss`."""
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
-        layouts = cloud_layouts(self.config, object_centred, scene_points)  # one FPS pass serves both stages
+        layouts = cloud_layouts(self.config, object_centred, scene_points, fps_ordered)  # serves both stages
         if frames is not None:
             frames = frames.to(scene_points).unsqueeze(1).expand(b, num_samples, 3)
         elif self.global_stage is not None:
@@ -228,12 +237,18 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             if self.config.point_scale is not None:
                 radius = object_radius(object_points).median().reshape(1).double()
                 checks.append((radius, lambda values: self._warn_units(values[0], OBJECT_KEY)))
+        fps_ordered = (False, False)
         if self.training:
-            object_points, scene_points, goal_points = self._augment(object_points, scene_points, goal_points)
+            object_points, scene_points, goal_points, fps_ordered = self._augment(
+                object_points, scene_points, goal_points
+            )
         frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points, OBJECT_KEY))
         with self._autocast():
             losses = self.model.compute_loss(
-                frame.to_model(object_points), frame.to_model(scene_points), frame.to_model(goal_points)
+                frame.to_model(object_points),
+                frame.to_model(scene_points),
+                frame.to_model(goal_points),
+                fps_ordered=fps_ordered,
             )
         loss = losses.pop("loss")
         terms = {name: value.detach().float() for name, value in losses.items()}
@@ -328,8 +343,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         if not isinstance(sampler, str) or sampler not in SAMPLER_ETA:
             raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
         eta = SAMPLER_ETA[sampler]
-        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
-        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        model_object, model_scene, fps_ordered = self._at_model_resolution(object_points, scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         if placement_frames is not None:  # where the object's centroid goes -> where the model's subsample's goes
             shift = model_object.mean(1) - object_points.mean(1)
@@ -343,6 +357,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 eta=eta,
                 generator=generator,
                 frames=placement_frames,
+                fps_ordered=fps_ordered,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
@@ -370,8 +385,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         """The Dense GMM: mixing weights (B, N_S) over scene points and component means (B, N_S, 3), metres."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        model_object = self._at_model_resolution(object_points, self.config.num_object_points)
-        model_scene = self._at_model_resolution(scene_points, self.config.num_scene_points)
+        model_object, model_scene, _ = self._at_model_resolution(object_points, scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
         with self._autocast():
             weights, means = self.inference_model.placement_distribution(
@@ -411,16 +425,23 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             return contextlib.nullcontext()
         return torch.autocast(device_type=next(self.parameters()).device.type, dtype=torch.bfloat16)
 
-    @staticmethod
-    def _at_model_resolution(points: Tensor, num_points: int) -> Tensor:
-        """Clouds larger than the network's point count, reduced by (deterministic) farthest point sampling.
+    def _at_model_resolution(
+        self, object_points: Tensor, scene_points: Tensor
+    ) -> tuple[Tensor, Tensor, tuple[bool, bool]]:
+        """The clouds larger than the network's point counts, reduced by (deterministic) farthest point sampling in
+        one pass; which of the two were reduced, so are in FPS order (their layout is then free).
 
         The network is trained at `num_*_points`; feeding it denser clouds would change every PointNet++
         neighbourhood and cost attention quadratically, so inference sees the same resolution as training.
         """
-        if points.shape[1] <= num_points:
-            return points
-        return gather_points(points, farthest_point_sample(points, num_points))
+        clouds = [object_points, scene_points]
+        sizes = [self.config.num_object_points, self.config.num_scene_points]
+        reduced = [i for i, cloud in enumerate(clouds) if cloud.shape[1] > sizes[i]]
+        if reduced:
+            keeps = farthest_point_sample_parts([clouds[i].float() for i in reduced], [sizes[i] for i in reduced])
+            for i, keep in zip(reduced, keeps, strict=True):
+                clouds[i] = gather_points(clouds[i], keep)
+        return clouds[0], clouds[1], (0 in reduced, 1 in reduced)
 
     def _point_scale(self, object_points: Tensor, name: str = "object_points") -> float:
         if self.config.point_scale is not None:
@@ -512,7 +533,9 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     def _augment(
         self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor
-    ) -> tuple[Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor, Tensor, Tensor, tuple[bool, bool]]:
+        """The training batch's augmentations; last, each cloud larger than the network's point count reduced by
+        FPS, which leaves it in FPS order (the returned flags, for object and scene), so its layout is free."""
         config = self.config
         if config.z_rotation_augmentation:
             object_points, scene_points, goal_points = random_z_rotation(
@@ -525,12 +548,17 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
         if config.scene_occlusion_prob > 0:
             scene_points = gather_points(scene_points, ball_cut(scene_points, config.scene_occlusion_prob))
-        if object_points.shape[1] > config.num_object_points:
-            keep = downsample_indices(object_points, config.num_object_points)
-            object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
-        if scene_points.shape[1] > config.num_scene_points:
-            scene_points = gather_points(scene_points, downsample_indices(scene_points, config.num_scene_points))
-        return object_points, scene_points, goal_points
+        sizes = {"object": config.num_object_points, "scene": config.num_scene_points}
+        clouds = {"object": object_points, "scene": scene_points}
+        reduced = [name for name, cloud in clouds.items() if cloud.shape[1] > sizes[name]]
+        if reduced:
+            keeps = downsample_indices([clouds[name] for name in reduced], [sizes[name] for name in reduced])
+            for name, keep in zip(reduced, keeps, strict=True):
+                clouds[name] = gather_points(clouds[name], keep)
+            if "object" in reduced:
+                goal_points = gather_points(goal_points, keeps[0])
+        fps_ordered = ("object" in reduced, "scene" in reduced)
+        return clouds["object"], clouds["scene"], goal_points, fps_ordered
 
     # ------------------------------------------------------------------------------ saving and loading
     def _save_pretrained(self, save_directory: Path) -> None:

@@ -63,16 +63,33 @@ def centroid_count(n: int, ratio: float) -> int:
     return max(1, round(n * ratio))
 
 
+def _first_indices(batch: int, count: int, device: torch.device) -> Tensor:
+    return torch.arange(count, device=device).expand(batch, count)
+
+
 @torch.no_grad()
-def part_layouts(parts: Sequence[Tensor], ratios: tuple[float, float]) -> list[SamplingLayout]:
-    """FPS centroids of each part (B, N_i, 3) on its own, indexed into that part; one FPS pass per level serves
-    all parts (see `farthest_point_sample_parts`)."""
+def part_layouts(
+    parts: Sequence[Tensor], ratios: tuple[float, float], fps_ordered: Sequence[bool] | None = None
+) -> list[SamplingLayout]:
+    """FPS centroids of each part (B, N_i, 3) on its own, indexed into that part.
+
+    FPS of a prefix of an FPS order, from its first point, is that prefix again (each next point of the order is
+    the farthest of the whole cloud, so of any prefix holding it). So level 2, the FPS of the level-1 centroids,
+    is their first points, and a part already in FPS order from its point 0 (`fps_ordered[i]`: the policy's own
+    downsampling made it) needs no FPS at all. The others share one FPS pass (`farthest_point_sample_parts`)."""
     parts = [part.float() for part in parts]
+    fps_ordered = fps_ordered if fps_ordered is not None else [False] * len(parts)
     counts1 = [centroid_count(part.shape[1], ratios[0]) for part in parts]
-    level1 = farthest_point_sample_parts(parts, counts1)
-    centroids = [gather_points(part, idx) for part, idx in zip(parts, level1, strict=True)]
-    level2 = farthest_point_sample_parts(centroids, [centroid_count(c, ratios[1]) for c in counts1])
-    return [SamplingLayout(a, b) for a, b in zip(level1, level2, strict=True)]
+    todo = [i for i, ordered in enumerate(fps_ordered) if not ordered]
+    sampled = iter(farthest_point_sample_parts([parts[i] for i in todo], [counts1[i] for i in todo]) if todo else [])
+    b, device = parts[0].shape[0], parts[0].device
+    return [
+        SamplingLayout(
+            _first_indices(b, count1, device) if ordered else next(sampled),
+            _first_indices(b, centroid_count(count1, ratios[1]), device),
+        )
+        for ordered, count1 in zip(fps_ordered, counts1, strict=True)
+    ]
 
 
 def concat_layouts(layouts: Sequence[SamplingLayout], sizes: Sequence[int]) -> SamplingLayout:
@@ -87,12 +104,15 @@ def concat_layouts(layouts: Sequence[SamplingLayout], sizes: Sequence[int]) -> S
     return SamplingLayout(torch.cat(level1, 1), torch.cat(level2, 1))
 
 
-def cloud_layouts(config, object_points: Tensor, scene_points: Tensor) -> list[SamplingLayout] | None:
+def cloud_layouts(
+    config, object_points: Tensor, scene_points: Tensor, fps_ordered: tuple[bool, bool] = (False, False)
+) -> list[SamplingLayout] | None:
     """The object's and the scene's own layouts, which every PointNet++ encoder of the model shares (FPS does not
-    change when a cloud moves rigidly), or None for the MLP encoders."""
+    change when a cloud moves rigidly), or None for the MLP encoders. `fps_ordered`: which of the two clouds are
+    in FPS order from their point 0 already (see `part_layouts`)."""
     if config.encoder != "pointnet2":
         return None
-    return part_layouts([object_points, scene_points], config.sa_ratios)
+    return part_layouts([object_points, scene_points], config.sa_ratios, fps_ordered)
 
 
 def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> SamplingLayout:
