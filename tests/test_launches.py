@@ -41,7 +41,9 @@ def _small_policy(**overrides) -> TaxDPDPolicy:
     return TaxDPDPolicy(config)
 
 
-@pytest.mark.parametrize("overrides", [{}, {"use_amp": True}], ids=["fp32", "bf16"])
+@pytest.mark.parametrize(
+    "overrides", [{}, {"use_amp": True}, {"local_scene_points": 48}], ids=["fp32", "bf16", "local-scene"]
+)
 def test_a_training_step_never_waits_for_the_device_until_its_read_back(overrides):
     """Forward, backward, clipping, the optimiser and the weight average as lerobot-train runs them: no host sync
     until `update()` reads the step's loss terms and input checks back, once."""
@@ -73,9 +75,10 @@ def test_a_training_step_never_waits_for_the_device_until_its_read_back(override
     assert all(isinstance(value, float) for value in terms.values())
 
 
-def test_sampling_reads_back_at_most_twice():
+@pytest.mark.parametrize("overrides", [{}, {"local_scene_points": 48}], ids=["whole-scene", "local-scene"])
+def test_sampling_reads_back_at_most_twice(overrides):
     """The input checks (values, units) are the only reads: the denoising loop waits for nothing."""
-    policy = _small_policy().eval()
+    policy = _small_policy(**overrides).eval()
     g = torch.Generator().manual_seed(2)
     counter = LaunchCounter()
     with device_code_paths(), counter:

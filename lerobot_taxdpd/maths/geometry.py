@@ -103,8 +103,8 @@ def _farthest_point_loop(flat: Tensor, num_samples: int, current: Tensor) -> Ten
 def farthest_point_sample_parts(
     parts: list[Tensor], counts: list[int], starts: list[Tensor] | None = None
 ) -> list[Tensor]:
-    """FPS of several batched clouds at once: parts[i] (B, N_i, 3) -> (B, counts[i]), each from `starts[i]` (B,)
-    (default: point 0).
+    """FPS of several batched clouds at once: parts[i] (B_i, N_i, 3) -> (B_i, counts[i]), each from `starts[i]`
+    (B_i,) (default: point 0).
 
     Off the CPU, all parts go through one loop (each padded with copies of its start point, which are never
     farther than any other point), so the number of ops follows the largest count, not the sum of them."""
@@ -121,7 +121,7 @@ def farthest_point_sample_parts(
         first = gather_points(part.detach(), start.view(-1, 1).to(part.device))
         padded.append(torch.cat([part.detach(), first.expand(-1, n - part.shape[1], -1)], 1))
     firsts = torch.cat([start.to(parts[0].device) for start in starts])
-    indices = _farthest_point_loop(torch.cat(padded), max(counts), firsts).split(parts[0].shape[0])
+    indices = _farthest_point_loop(torch.cat(padded), max(counts), firsts).split([p.shape[0] for p in parts])
     return [chosen[:, :count] for chosen, count in zip(indices, counts, strict=True)]
 
 
@@ -159,6 +159,11 @@ def gather_points(points: Tensor, indices: Tensor) -> Tensor:
 def nearest_indices(points: Tensor, anchors: Tensor, k: int = 1) -> Tensor:
     """Indices (B, N, k) of the k anchors (B, n, 3) nearest to each point (B, N, 3), nearest first."""
     return torch.cdist(points, anchors).topk(k, dim=-1, largest=False).indices
+
+
+def nearest_points(points: Tensor, centres: Tensor, count: int) -> Tensor:
+    """The `count` points of each cloud (B, N, 3) nearest its centre (B, 3), nearest first: (B, count, 3)."""
+    return gather_points(points, nearest_indices(centres.unsqueeze(1), points, count).squeeze(1))
 
 
 def lift_point_motion(points: Tensor, anchors: Tensor, anchor_goals: Tensor, num_neighbors: int = 8) -> Tensor:

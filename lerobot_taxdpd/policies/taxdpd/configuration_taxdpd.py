@@ -109,6 +109,11 @@ class TaxDPDConfig(PreTrainedConfig):
     # R phi - phi added to the shape's noise, as published, which leaves a copy of the shape at the last step.
     rotation_noise: str = "signal"
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
+    # What the local stage sees of the scene: 0, the scene the network sees (num_scene_points of it, the paper's
+    # layout); N > 0, the N points of the scene as given (denser than num_scene_points when the dataset records
+    # more) nearest the placement frame, so the place the object goes is seen at the recorded density whatever
+    # the scene's extent (RPDiff crops its scene likewise).
+    local_scene_points: int = 0
     sampler: str = "ddim"
     num_inference_steps: int = 10
     num_goal_samples: int = 1  # goals sampled per call of `select_action` (the first is returned)
@@ -167,6 +172,8 @@ class TaxDPDConfig(PreTrainedConfig):
             )
         if not 0.0 <= self.z_rotation_range <= 180.0:
             raise ValueError(f"z_rotation_range: degrees in [0, 180], got {self.z_rotation_range}")
+        if self.local_scene_points < 0:
+            raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.prediction_type not in PREDICTION_TYPES:

@@ -39,6 +39,7 @@ from lerobot_taxdpd.maths.geometry import (
     gather_points,
     lift_point_motion,
     nearest_indices,
+    nearest_points,
 )
 from lerobot_taxdpd.policies.checkpoints import CheckedLoading
 from lerobot_taxdpd.policies.ema import EmaWeights
@@ -97,24 +98,34 @@ class TaxDPDModel(nn.Module):
         goal_points: Tensor,
         *,
         fps_ordered: tuple[bool, bool] = (False, False),
+        dense_scene: Tensor | None = None,
     ) -> dict[str, Tensor]:
-        """`fps_ordered`: whether the object and the scene clouds are in FPS order from their point 0 already."""
+        """`fps_ordered`: whether the object and the scene clouds are in FPS order from their point 0 already;
+        `dense_scene`: the scene as given, before its reduction to the network's point count, where the local
+        stage takes its local scene from (default: `scene_points`)."""
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
         object_centred = object_points - object_points.mean(1, keepdim=True)
-        layouts = cloud_layouts(self.config, object_centred, scene_points, fps_ordered)  # serves both stages
+        if self.global_stage is not None:
+            frame = target + randn_like(target) * self.config.frame_noise_std
+        else:
+            frame = torch.zeros_like(target)  # the scene centroid
+        clouds, ordered = [object_centred, scene_points], list(fps_ordered)
+        if self.config.local_scene_points:
+            dense = dense_scene if dense_scene is not None else scene_points
+            clouds.append(nearest_points(dense, frame, min(self.config.local_scene_points, dense.shape[1])))
+            ordered.append(False)
+        layouts = cloud_layouts(self.config, clouds, ordered)  # one FPS pass serves both stages
         if self.global_stage is not None:
             # The Dense GMM learns from the first part of the (shuffled) batch only: it converges long before
             # the local stage, so the rest of its share of the step is better spent on the local stage.
             n = max(1, round(target.shape[0] * self.config.gmm_batch_fraction))
-            head = [layout.head(n) for layout in layouts] if layouts is not None else None
+            head = [layout.head(n) for layout in layouts[:2]] if layouts is not None else None
             logits, means = self._gmm(object_points[:n], scene_points[:n], head)
             losses["loss_gmm"] = self.global_stage.loss(logits, means, target[:n])
-            frame = target + randn_like(target) * self.config.frame_noise_std
-        else:
-            frame = torch.zeros_like(target)  # the scene centroid
         frame = frame.unsqueeze(1)
-        losses.update(self.local_stage.loss(object_centred, scene_points - frame, goal_points - frame, layouts=layouts))
+        local_scene, local_layouts = clouds[-1] - frame, [layouts[0], layouts[-1]] if layouts is not None else None
+        losses.update(self.local_stage.loss(object_centred, local_scene, goal_points - frame, layouts=local_layouts))
         losses["loss"] = losses["loss_local"] + losses.get("loss_gmm", 0.0)
         return losses
 
@@ -137,12 +148,14 @@ class TaxDPDModel(nn.Module):
         generator: torch.Generator | None = None,
         frames: Tensor | None = None,
         fps_ordered: tuple[bool, bool] = (False, False),
+        dense_scene: Tensor | None = None,
     ) -> Tensor:
         """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3). `frames` (B, 3), when given, are the
-        placement frames of every sample instead of the Dense GMM's; `fps_ordered` as in `compute_loss`."""
+        placement frames of every sample instead of the Dense GMM's; `fps_ordered` and `dense_scene` as in
+        `compute_loss`."""
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
-        layouts = cloud_layouts(self.config, object_centred, scene_points, fps_ordered)  # serves both stages
+        layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
         if frames is not None:
             frames = frames.to(scene_points).unsqueeze(1).expand(b, num_samples, 3)
         elif self.global_stage is not None:
@@ -154,10 +167,16 @@ class TaxDPDModel(nn.Module):
             frames = gather_points(means.float(), component.to(means.device))
         else:
             frames = scene_points.new_zeros(b, num_samples, 3)
-        frames = frames.reshape(b * num_samples, 1, 3)
-        scene_local = scene_points.repeat_interleave(num_samples, 0) - frames
+        frames = frames.reshape(b * num_samples, 3)
+        if self.config.local_scene_points:
+            dense = (dense_scene if dense_scene is not None else scene_points).repeat_interleave(num_samples, 0)
+            scene_local = nearest_points(dense, frames, min(self.config.local_scene_points, dense.shape[1]))
+            layouts = [layouts[0], *cloud_layouts(self.config, [scene_local])] if layouts is not None else None
+        else:
+            scene_local = scene_points.repeat_interleave(num_samples, 0)
+        frames = frames.unsqueeze(1)
         goals = self.local_stage.sample(
-            object_centred, scene_local, num_inference_steps, eta=eta, generator=generator, layouts=layouts
+            object_centred, scene_local - frames, num_inference_steps, eta=eta, generator=generator, layouts=layouts
         )
         return (goals + frames).reshape(b, num_samples, n, 3)
 
@@ -237,9 +256,9 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             if self.config.point_scale is not None:
                 radius = object_radius(object_points).median().reshape(1).double()
                 checks.append((radius, lambda values: self._warn_units(values[0], OBJECT_KEY)))
-        fps_ordered = (False, False)
+        fps_ordered, dense_scene = (False, False), scene_points
         if self.training:
-            object_points, scene_points, goal_points, fps_ordered = self._augment(
+            object_points, scene_points, goal_points, fps_ordered, dense_scene = self._augment(
                 object_points, scene_points, goal_points
             )
         frame = ModelFrame.of_scene(scene_points, self._point_scale(object_points, OBJECT_KEY))
@@ -249,6 +268,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 frame.to_model(scene_points),
                 frame.to_model(goal_points),
                 fps_ordered=fps_ordered,
+                dense_scene=frame.to_model(dense_scene) if self.config.local_scene_points else None,
             )
         loss = losses.pop("loss")
         terms = {name: value.detach().float() for name, value in losses.items()}
@@ -358,6 +378,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 generator=generator,
                 frames=placement_frames,
                 fps_ordered=fps_ordered,
+                dense_scene=frame.to_model(scene_points) if self.config.local_scene_points else None,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
@@ -533,9 +554,10 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     def _augment(
         self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor
-    ) -> tuple[Tensor, Tensor, Tensor, tuple[bool, bool]]:
+    ) -> tuple[Tensor, Tensor, Tensor, tuple[bool, bool], Tensor]:
         """The training batch's augmentations; last, each cloud larger than the network's point count reduced by
-        FPS, which leaves it in FPS order (the returned flags, for object and scene), so its layout is free."""
+        FPS, which leaves it in FPS order (the returned flags, for object and scene), so its layout is free.
+        Also returns the scene before its reduction, where a local stage takes its local scene from."""
         config = self.config
         if config.z_rotation_augmentation:
             object_points, scene_points, goal_points = random_z_rotation(
@@ -558,7 +580,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             if "object" in reduced:
                 goal_points = gather_points(goal_points, keeps[0])
         fps_ordered = ("object" in reduced, "scene" in reduced)
-        return clouds["object"], clouds["scene"], goal_points, fps_ordered
+        return clouds["object"], clouds["scene"], goal_points, fps_ordered, scene_points
 
     # ------------------------------------------------------------------------------ saving and loading
     def _save_pretrained(self, save_directory: Path) -> None:

@@ -76,22 +76,23 @@ class LocalDenoiser(nn.Module):
     ) -> DenoiserContext:
         """Cache the work that does not depend on the goal estimate.
 
-        `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3), i.e.
-        K translated copies of each scene: object-only work, and the farthest point sampling (invariant to
-        translation), are done once per object and scene and repeated. `layouts` are the object's and the
-        scene's own (B rows), when the caller has them already.
+        `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3): K
+        translated copies of each scene, or K local scenes, one around each frame. Object-only work is done once
+        per object and repeated. `layouts` are the object's (B rows) and the scene's, when the caller has them
+        already: B rows for translated copies (FPS does not change under translation), B * K for local scenes.
         """
         repeats = scene.shape[0] // object_centred.shape[0]
         if layouts is None:
-            layouts = cloud_layouts(self.config, object_centred, scene[::repeats])
+            layouts = cloud_layouts(self.config, [object_centred, scene[::repeats]])
         object_layout, scene_layout = layouts if layouts is not None else (None, None)
+        if scene_layout is not None and scene_layout.level1.shape[0] != scene.shape[0]:
+            scene_layout = scene_layout.repeat_interleave(repeats)
         reconstruction_layout = scene_features = None
         if self.use_reconstruction:
             if layouts is not None:
                 sizes = [object_centred.shape[1], scene.shape[1]]
-                reconstruction_layout = concat_layouts(layouts, sizes).repeat_interleave(repeats)
+                reconstruction_layout = concat_layouts([object_layout.repeat_interleave(repeats), scene_layout], sizes)
         else:
-            scene_layout = scene_layout.repeat_interleave(repeats) if scene_layout is not None else None
             scene_features = self.scene_encoder(scene, _empty_channels(scene), layout=scene_layout)
         object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
         object_features = self.object_encoder(

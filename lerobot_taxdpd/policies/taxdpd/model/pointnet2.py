@@ -33,6 +33,8 @@ class SamplingLayout:
     level2: Tensor  # (B, M2)
 
     def repeat_interleave(self, repeats: int) -> SamplingLayout:
+        if repeats == 1:
+            return self
         return SamplingLayout(self.level1.repeat_interleave(repeats, 0), self.level2.repeat_interleave(repeats, 0))
 
     def head(self, n: int) -> SamplingLayout:
@@ -105,14 +107,14 @@ def concat_layouts(layouts: Sequence[SamplingLayout], sizes: Sequence[int]) -> S
 
 
 def cloud_layouts(
-    config, object_points: Tensor, scene_points: Tensor, fps_ordered: tuple[bool, bool] = (False, False)
+    config, clouds: Sequence[Tensor], fps_ordered: Sequence[bool] | None = None
 ) -> list[SamplingLayout] | None:
-    """The object's and the scene's own layouts, which every PointNet++ encoder of the model shares (FPS does not
-    change when a cloud moves rigidly), or None for the MLP encoders. `fps_ordered`: which of the two clouds are
-    in FPS order from their point 0 already (see `part_layouts`)."""
+    """The layouts of the model's clouds (the object, the scene, the local stage's scenes), which every PointNet++
+    encoder shares (FPS does not change when a cloud moves rigidly), in one FPS pass, or None for the MLP
+    encoders. `fps_ordered[i]`: cloud i is in FPS order from its point 0 already (see `part_layouts`)."""
     if config.encoder != "pointnet2":
         return None
-    return part_layouts([object_points, scene_points], config.sa_ratios, fps_ordered)
+    return part_layouts(clouds, config.sa_ratios, fps_ordered)
 
 
 def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> SamplingLayout:
