@@ -18,8 +18,9 @@ the step's reduction to the network's point count is counted too. They do not de
     python benchmarks/speed.py --models cpu --set max_neighbors=16 use_amp=true   # a variant
     python benchmarks/speed.py --models cpu --dataset data/mug_easyrack          # lerobot-train on real demos
 
-The `lerobot-train` figure is taken on a small synthetic dataset at the model's point counts unless
-`--dataset` names a task's demonstrations (clouds as recorded, e.g. 512 points, reduced in every step).
+Every figure is taken on clouds of the size the datasets record (`RECORDED_POINTS`), reduced to the network's
+point counts in every step as in training; the `lerobot-train` figure on a small synthetic dataset of that size
+unless `--dataset` names a task's demonstrations.
 """
 
 from __future__ import annotations
@@ -191,12 +192,13 @@ def flops(run) -> float:
     return float(counter.get_total_flops())
 
 
-def policy_figures(fields: dict, args) -> dict:
+def policy_figures(fields: dict, args, cloud_sizes: tuple[int, int]) -> dict:
+    """Step and sampling times in the policy on clouds of `cloud_sizes` points (object, scene), as recorded."""
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
     policy = TaxDPDPolicy(config).train()
     optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
-    batch = slot_batch(args.batch_size, config.num_object_points, config.num_scene_points)
+    batch = slot_batch(args.batch_size, *cloud_sizes)
 
     def step() -> None:
         with record_function("forward"):
@@ -231,9 +233,9 @@ def policy_figures(fields: dict, args) -> dict:
     }
 
 
-def lerobot_train_figures(fields: dict, args) -> dict:
-    """Steps of `lerobot-train` on `--dataset`, or on a slot dataset at the model's point counts; update and
-    data times from its log."""
+def lerobot_train_figures(fields: dict, args, cloud_sizes: tuple[int, int]) -> dict:
+    """Steps of `lerobot-train` on `--dataset`, or on a slot dataset with clouds of `cloud_sizes` points (object,
+    scene); update and data times from its log."""
     with tempfile.TemporaryDirectory() as tmp:
         if args.dataset:
             root = args.dataset.resolve()
@@ -242,8 +244,8 @@ def lerobot_train_figures(fields: dict, args) -> dict:
             write_slot_dataset(
                 root,
                 episodes=32,
-                object_cloud_size=fields["num_object_points"],
-                scene_cloud_size=fields["num_scene_points"],
+                object_cloud_size=cloud_sizes[0],
+                scene_cloud_size=cloud_sizes[1],
                 seed=0,
             )
         steps = args.train_steps
@@ -279,7 +281,7 @@ def lerobot_train_figures(fields: dict, args) -> dict:
         "steps_per_s": 1.0 / (update_s + data_s),
         "wall_s_with_startup": wall,
         "num_workers": args.num_workers,
-        "dataset": str(args.dataset or "synthetic two-slot demos at the model's point counts"),
+        "dataset": str(args.dataset or f"synthetic two-slot demos, {cloud_sizes[0]} / {cloud_sizes[1]} points"),
     }
 
 
@@ -332,7 +334,8 @@ def main() -> None:
     results = []
     for name in args.models.split(","):
         fields = model_config(name, overrides)
-        recorded = RECORDED_POINTS.get(name, (fields["num_object_points"], fields["num_scene_points"]))
+        network = (fields["num_object_points"], fields["num_scene_points"])
+        recorded = tuple(max(a, b) for a, b in zip(RECORDED_POINTS.get(name, network), network, strict=True))
         launches = launch_figures(fields, args.batch_size, recorded)
         row = {"model": name, "config": fields, "recorded_points": recorded, "launches": launches}
         results.append(row)
@@ -343,12 +346,12 @@ def main() -> None:
             print(f"  launches, {what}: {counted['ops']} ops, {counted['syncs']} host syncs ({stages})")
         if args.launches_only:
             continue
-        row["policy"] = policy_figures(fields, args)
+        row["policy"] = policy_figures(fields, args, recorded)
         p = row["policy"]
         precision = "bf16" if fields.get("use_amp") else "fp32"
         p["fraction_of_peak"] = p["achieved_gflops"] / peak[precision]
         if args.train_steps:
-            row["lerobot_train"] = lerobot_train_figures(fields, args)
+            row["lerobot_train"] = lerobot_train_figures(fields, args, recorded)
         stages = ", ".join(f"{k} {1000 * v:.0f}" for k, v in p["stages_s"].items())
         print(
             f"  policy step {p['step_s']:.3f} s ({p['samples_per_s']:.1f} samples/s, "
