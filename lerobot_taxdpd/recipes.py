@@ -14,6 +14,7 @@ even where the environment's scripts are not on PATH.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -52,7 +53,7 @@ def recipe_path(name_or_path: str | Path) -> Path:
 
 
 def train_command(
-    dataset: Path, repo_id: str, output_dir: Path, *, recipe: Path | None = None, flags: Sequence[str] = ()
+    dataset: Path, repo_id: str, output_dir: Path, *, recipe: Path | str | None = None, flags: Sequence[str] = ()
 ) -> list[str]:
     """`lerobot-train` on a dataset folder, from a recipe file or none, with `flags` (`--policy.<field>=...`,
     `--steps=...`, `--seed=...`) last so that they override the recipe."""
@@ -61,6 +62,70 @@ def train_command(
         command.append(f"--config_path={recipe}")
     command += [f"--dataset.repo_id={repo_id}", f"--dataset.root={dataset}", f"--output_dir={output_dir}"]
     return command + list(flags)
+
+
+#: Policy fields a training run sets from its machine or its data, never from its recipe.
+_RUN_SPECIFIC_FIELDS = {
+    "type", "input_features", "output_features", "device", "push_to_hub", "repo_id", "private", "tags", "license",
+    "pretrained_path", "point_scale", "cloud_center", "cloud_scale",
+}  # fmt: skip
+
+
+def _flags_beyond(recipe: dict, trained: dict) -> list[str]:
+    """The `lerobot-train` flags that turn `recipe` into the run `trained` (both lerobot-train configs)."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.configs.train import TrainPipelineConfig
+
+    policy = trained.get("policy", {})
+    defaults = vars(PreTrainedConfig.get_choice_class(policy["type"])())
+    set_by_recipe = recipe.get("policy", {})
+    flags = []
+    for field, value in policy.items():
+        expected = set_by_recipe.get(field, defaults.get(field))
+        if field not in _RUN_SPECIFIC_FIELDS and _as_json(value) != _as_json(expected):
+            flags.append(f"--policy.{field}={json.dumps(value) if isinstance(value, list | dict) else value}")
+    run_defaults = {f.name: f.default for f in dataclasses.fields(TrainPipelineConfig)}
+    for key in ("batch_size", "steps", "seed"):
+        if key in trained and trained[key] != recipe.get(key, run_defaults.get(key)):
+            flags.append(f"--{key}={trained[key]}")
+    return flags
+
+
+def _as_json(value):
+    return json.loads(json.dumps(value, default=str))
+
+
+def portable_train_command(trained: dict) -> str:
+    """The `lerobot-train` command of a finished run, as anyone can type it: the shipped recipe it needs the
+    fewest flags from (named by `python -m lerobot_taxdpd.recipes path`), those flags, and the run's dataset
+    under `data/`, from its saved config (`train_config.json`), whatever folders it ran in."""
+    policy_type = trained["policy"]["type"]
+    repo_id = trained.get("dataset", {}).get("repo_id", "local/data")
+    candidates = {}
+    for name, path in list_recipes().items():
+        recipe = json.loads(path.read_text())
+        if recipe.get("policy", {}).get("type") == policy_type:
+            candidates[name] = (recipe, _flags_beyond(recipe, trained))
+    if not candidates:
+        raise ValueError(f"no shipped recipe trains a {policy_type!r} policy")
+
+    def fit(name: str) -> tuple[bool, int]:  # a recipe made for another dataset last, then the fewest flags
+        recipe, flags = candidates[name]
+        return recipe.get("dataset", {}).get("repo_id", repo_id) != repo_id, len(flags)
+
+    name = min(candidates, key=fit)
+    recipe, flags = candidates[name]
+    recipe_dataset = recipe.get("dataset", {})
+    root = recipe_dataset.get("root") if recipe_dataset.get("repo_id") == repo_id else None
+    command = train_command(
+        Path(root or f"data/{repo_id.split('/')[-1]}"),
+        repo_id,
+        Path("outputs/train") / name,
+        recipe=f"$(python -m lerobot_taxdpd.recipes path {name})",
+        flags=flags,
+    )
+    resumed = " (its last leg resumed an earlier checkpoint with --resume=true)" if trained.get("resume") else ""
+    return " ".join(map(str, command)) + resumed
 
 
 def run(

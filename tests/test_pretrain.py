@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from lerobot_taxdpd.goal_predictors import list_goal_predictors, resolve_goal_predictor
-from lerobot_taxdpd.recipes import recipe_path
+from lerobot_taxdpd.recipes import portable_train_command, recipe_path
 from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.generate import generate_dataset
 from lerobot_taxdpd.sim.pretrain import portable_commands, prepare_demonstrations, training_flags
@@ -66,3 +66,28 @@ def test_recorded_commands_run_on_any_machine():
     )
     assert train.startswith("lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path taxdpd_cpu) ")
     assert "--dataset.root=data/insert_waterproof" in train and "--policy.z_rotation_range=0" in train
+
+
+@pytest.mark.parametrize(
+    ("recipe", "repo_id", "changes", "flags"),
+    [
+        ("taxdpd_cpu", "local/mug_easyrack", {"frame_noise_std": 0.3}, ["--policy.frame_noise_std=0.3"]),
+        ("cloth_hang_gc_dp3", "local/cloth_hang_policy", {"steps": 12000}, ["--steps=12000"]),
+        ("cloth_hang_taxdpd", "local/cloth_hang_goal", {}, []),
+    ],
+)
+def test_a_finished_runs_saved_config_gives_back_its_recipe_and_flags(recipe, repo_id, changes, flags):
+    """What ship_pipeline records from a run's train_config.json: the recipe by name, then only what differs."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    trained = json.loads(recipe_path(recipe).read_text())
+    policy_type = trained["policy"]["type"]
+    defaults = {k: v for k, v in vars(PreTrainedConfig.get_choice_class(policy_type)()).items() if k != "type"}
+    trained["policy"] = {**json.loads(json.dumps(defaults, default=str)), **trained["policy"]}
+    trained["dataset"] = {"repo_id": repo_id, "root": "/home/someone/runs/data"}
+    for key, value in changes.items():
+        (trained if key == "steps" else trained["policy"])[key] = value
+    command = portable_train_command(trained)
+    assert command.startswith(f"lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path {recipe}) ")
+    assert f"--dataset.repo_id={repo_id}" in command and "/home/someone" not in command
+    assert [word for word in command.split() if word.startswith(("--policy.", "--steps", "--seed"))] == flags

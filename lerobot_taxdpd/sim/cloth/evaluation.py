@@ -32,6 +32,7 @@ from lerobot_taxdpd.maths.metrics import (
     success_summary,
 )
 from lerobot_taxdpd.maths.selection import check_goal_selection, executed_first
+from lerobot_taxdpd.recipes import portable_train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.reports.plots import plot_goal_samples
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
@@ -424,7 +425,8 @@ def _at_k(goal_metrics: dict, num_samples: int) -> dict:
 
 
 def _training(checkpoint: Path) -> dict:
-    """How a checkpoint was trained, from the train_config.json lerobot-train saved beside it ({} without one)."""
+    """How a checkpoint was trained, from the train_config.json lerobot-train saved beside it ({} without one);
+    its command as anyone can type it (the shipped recipe and flags), not the folders it ran in."""
     train_config = checkpoint / "train_config.json"
     if not train_config.is_file():
         return {}
@@ -432,8 +434,7 @@ def _training(checkpoint: Path) -> dict:
     dataset = trained.get("dataset", {})
     return {
         "data": f"dataset {dataset.get('repo_id', '?')} ({dataset.get('root', '?')})",
-        "training_command": f"lerobot-train --config_path={train_config} (the saved config of the training run"
-        + (", whose last leg resumed an earlier checkpoint with --resume=true)" if trained.get("resume") else ")"),
+        "training_command": portable_train_command(trained),
         "training_steps": trained.get("steps"),
         "batch_size": trained.get("batch_size"),
     }
