@@ -83,7 +83,8 @@ def _flags_beyond(recipe: dict, trained: dict) -> list[str]:
     for field, value in policy.items():
         expected = set_by_recipe.get(field, defaults.get(field))
         if field not in _RUN_SPECIFIC_FIELDS and _as_json(value) != _as_json(expected):
-            flags.append(f"--policy.{field}={json.dumps(value) if isinstance(value, list | dict) else value}")
+            text = json.dumps(value, separators=(",", ":")) if isinstance(value, list | dict) else value
+            flags.append(f"--policy.{field}={text}")  # one shell word
     run_defaults = {f.name: f.default for f in dataclasses.fields(TrainPipelineConfig)}
     for key in ("batch_size", "steps", "seed"):
         if key in trained and trained[key] != recipe.get(key, run_defaults.get(key)):
