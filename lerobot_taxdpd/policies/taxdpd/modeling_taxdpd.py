@@ -112,8 +112,7 @@ class TaxDPDModel(nn.Module):
             frame = torch.zeros_like(target)  # the scene centroid
         clouds, ordered = [object_centred, scene_points], list(fps_ordered)
         if self.config.local_scene_points:
-            dense = dense_scene if dense_scene is not None else scene_points
-            clouds.append(nearest_points(dense, frame, min(self.config.local_scene_points, dense.shape[1])))
+            clouds.append(self._local_scene(dense_scene if dense_scene is not None else scene_points, frame))
             ordered.append(False)
         layouts = cloud_layouts(self.config, clouds, ordered)  # one FPS pass serves both stages
         if self.global_stage is not None:
@@ -128,6 +127,10 @@ class TaxDPDModel(nn.Module):
         losses.update(self.local_stage.loss(object_centred, local_scene, goal_points - frame, layouts=local_layouts))
         losses["loss"] = losses["loss_local"] + losses.get("loss_gmm", 0.0)
         return losses
+
+    def _local_scene(self, dense_scene: Tensor, frames: Tensor) -> Tensor:
+        """The local stage's scene: the `local_scene_points` points of each scene (B, M, 3) nearest its frame (B, 3)."""
+        return nearest_points(dense_scene, frames, min(self.config.local_scene_points, dense_scene.shape[1]))
 
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         if self.global_stage is None:
@@ -170,7 +173,7 @@ class TaxDPDModel(nn.Module):
         frames = frames.reshape(b * num_samples, 3)
         if self.config.local_scene_points:
             dense = (dense_scene if dense_scene is not None else scene_points).repeat_interleave(num_samples, 0)
-            scene_local = nearest_points(dense, frames, min(self.config.local_scene_points, dense.shape[1]))
+            scene_local = self._local_scene(dense, frames)
             layouts = [layouts[0], *cloud_layouts(self.config, [scene_local])] if layouts is not None else None
         else:
             scene_local = scene_points.repeat_interleave(num_samples, 0)
@@ -449,20 +452,29 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     def _at_model_resolution(
         self, object_points: Tensor, scene_points: Tensor
     ) -> tuple[Tensor, Tensor, tuple[bool, bool]]:
-        """The clouds larger than the network's point counts, reduced by (deterministic) farthest point sampling in
-        one pass; which of the two were reduced, so are in FPS order (their layout is then free).
+        """The clouds at the network's point counts (deterministic FPS, from point 0), and which of the two were
+        reduced, so are in FPS order (their layout is then free).
 
         The network is trained at `num_*_points`; feeding it denser clouds would change every PointNet++
         neighbourhood and cost attention quadratically, so inference sees the same resolution as training.
         """
+        clouds, keeps = self._reduced(object_points, scene_points, farthest_point_sample_parts)
+        return clouds[0], clouds[1], (keeps[0] is not None, keeps[1] is not None)
+
+    def _reduced(
+        self, object_points: Tensor, scene_points: Tensor, sample: Callable[[list[Tensor], list[int]], list[Tensor]]
+    ) -> tuple[list[Tensor], list[Tensor | None]]:
+        """Object and scene, each larger than the network's point count reduced by `sample` (an FPS of several
+        clouds in one pass: random starts in training, point 0 at inference); the indices each kept (None: whole)."""
         clouds = [object_points, scene_points]
         sizes = [self.config.num_object_points, self.config.num_scene_points]
+        keeps: list[Tensor | None] = [None, None]
         reduced = [i for i, cloud in enumerate(clouds) if cloud.shape[1] > sizes[i]]
         if reduced:
-            keeps = farthest_point_sample_parts([clouds[i].float() for i in reduced], [sizes[i] for i in reduced])
-            for i, keep in zip(reduced, keeps, strict=True):
-                clouds[i] = gather_points(clouds[i], keep)
-        return clouds[0], clouds[1], (0 in reduced, 1 in reduced)
+            picked = sample([clouds[i].float() for i in reduced], [sizes[i] for i in reduced])
+            for i, keep in zip(reduced, picked, strict=True):
+                clouds[i], keeps[i] = gather_points(clouds[i], keep), keep
+        return clouds, keeps
 
     def _point_scale(self, object_points: Tensor, name: str = "object_points") -> float:
         if self.config.point_scale is not None:
@@ -570,17 +582,13 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
         if config.scene_occlusion_prob > 0:
             scene_points = gather_points(scene_points, ball_cut(scene_points, config.scene_occlusion_prob))
-        sizes = {"object": config.num_object_points, "scene": config.num_scene_points}
-        clouds = {"object": object_points, "scene": scene_points}
-        reduced = [name for name, cloud in clouds.items() if cloud.shape[1] > sizes[name]]
-        if reduced:
-            keeps = downsample_indices([clouds[name] for name in reduced], [sizes[name] for name in reduced])
-            for name, keep in zip(reduced, keeps, strict=True):
-                clouds[name] = gather_points(clouds[name], keep)
-            if "object" in reduced:
-                goal_points = gather_points(goal_points, keeps[0])
-        fps_ordered = ("object" in reduced, "scene" in reduced)
-        return clouds["object"], clouds["scene"], goal_points, fps_ordered, scene_points
+        (model_object, model_scene), (object_keep, scene_keep) = self._reduced(
+            object_points, scene_points, downsample_indices
+        )
+        if object_keep is not None:
+            goal_points = gather_points(goal_points, object_keep)
+        fps_ordered = (object_keep is not None, scene_keep is not None)
+        return model_object, model_scene, goal_points, fps_ordered, scene_points
 
     # ------------------------------------------------------------------------------ saving and loading
     def _save_pretrained(self, save_directory: Path) -> None:
