@@ -71,7 +71,7 @@ def test_recorded_commands_run_on_any_machine():
 @pytest.mark.parametrize(
     ("recipe", "repo_id", "changes", "flags"),
     [
-        ("taxdpd_cpu", "local/mug_easyrack", {"frame_noise_std": 0.3}, ["--policy.frame_noise_std=0.3"]),
+        ("taxdpd_cpu", "local/mug_easyrack", {"frame_noise_std": 1.0}, ["--policy.frame_noise_std=1.0"]),
         ("cloth_hang_gc_dp3", "local/cloth_hang_policy", {"steps": 12000}, ["--steps=12000"]),
         ("cloth_hang_taxdpd", "local/cloth_hang_goal", {}, []),
     ],
