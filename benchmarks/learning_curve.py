@@ -8,10 +8,13 @@ keeping a checkpoint every `--save-every` steps, then scores each one on held-ou
 Beside every row: the equivariance probe (goal turn when the scene alone, the object alone, or a tilt of the
 object alone, is applied; ideal +20, 0, 0 deg) and, once, the trivial baselines (copy the start orientation,
 the mean goal orientation; both at the true position). CPU time is the training process's own (user + sys).
+`--run-dir` scores the checkpoints of a run that has already finished instead (e.g. one of `sim pretrain`'s,
+`<output>/train`), with the wall time that run recorded in place of CPU time.
 
     python benchmarks/learning_curve.py --task slots --steps 3000 --save-every 500
     python benchmarks/learning_curve.py --task insert_waterproof --dataset data/iw --steps 8000 --save-every 2000 \\
         --set start_tilt_range=15 --output results/curve_iw.json
+    python benchmarks/learning_curve.py --task book_shelf --run-dir outputs/book/train --trials 100
 """
 
 from __future__ import annotations
@@ -34,8 +37,9 @@ from lerobot_taxdpd.apps.synthetic import (
 )
 from lerobot_taxdpd.goal_predictors import load_goal_predictor
 from lerobot_taxdpd.maths.equivariance import goal_turn_response
-from lerobot_taxdpd.recipes import recipe_path, run, train_command
+from lerobot_taxdpd.recipes import portable_train_command, recipe_path, run, train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
+from lerobot_taxdpd.sim.pretrain import TRAIN_SECONDS_FILE
 
 SLOT_POINTS = (64, 128)
 
@@ -140,7 +144,45 @@ def summarise(report: dict) -> dict:
     for key in ("gripper_translation_error_mm", "gripper_rotation_error_deg"):
         if key in report:
             row[key] = report[key]["median"]
+    row |= {key: value for key, value in report.items() if key.startswith(("coverage@", "precision@"))}
     return row
+
+
+def train(args) -> tuple[Path, list[str], dict]:
+    """Train the recipe with a checkpoint every `--save-every` steps; the run folder, command and its cost."""
+    dataset = make_dataset(args)
+    run_dir = args.work_dir / "train"
+    if run_dir.exists():
+        shutil.rmtree(run_dir)
+    flags = (
+        [f"--policy.{token}" for token in args.set]
+        + [
+            f"--steps={args.steps}",
+            f"--save_freq={args.save_every}",
+            f"--log_freq={args.save_every}",
+            "--num_workers=0",
+            f"--seed={args.seed}",
+        ]
+        + ([f"--batch_size={args.batch_size}"] if args.batch_size else [])
+    )
+    command = train_command(dataset, f"local/{args.task}", run_dir, recipe=recipe_path(args.recipe), flags=flags)
+    print(" ".join(command), flush=True)
+    cpu_before = children_cpu_seconds()
+    wall = run(command, log=args.work_dir / "train.log", threads=args.threads)
+    cpu_minutes = (children_cpu_seconds() - cpu_before) / 60
+    return run_dir, command, {"steps": args.steps, "wall_seconds": wall, "minutes": {"cpu_minutes": cpu_minutes}}
+
+
+def finished_run(run_dir: Path) -> tuple[list[str], dict]:
+    """The portable command, steps and training time of a finished run: from its saved config, and the wall time
+    `sim pretrain` keeps beside it (`train_seconds.txt`; absent for a run made otherwise, then rows carry steps)."""
+    last = run_dir / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    if not last.is_file():
+        raise SystemExit(f"--run-dir {run_dir}: no finished run there ({last} is missing)")
+    trained = json.loads(last.read_text())
+    timing = run_dir.parent / TRAIN_SECONDS_FILE
+    minutes = {"wall_minutes": float(timing.read_text()) / 60} if timing.is_file() else {}
+    return [portable_train_command(trained)], {"steps": trained["steps"], "minutes": minutes}
 
 
 def main() -> None:
@@ -162,33 +204,19 @@ def main() -> None:
     parser.add_argument("--eval-seed", type=int, default=1000)
     parser.add_argument("--work-dir", type=Path, default=None)
     parser.add_argument("--output", type=Path, default=None)
+    parser.add_argument(
+        "--run-dir", type=Path, default=None, help="score this finished lerobot-train run's checkpoints; no training"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     name = args.output.stem if args.output else f"curve_{args.task}"
     args.work_dir = args.work_dir or Path("results") / name
     args.output = args.output or Path("results") / f"{name}.json"
 
-    dataset = make_dataset(args)
-    run_dir = args.work_dir / "train"
-    if run_dir.exists():
-        shutil.rmtree(run_dir)
-    flags = (
-        [f"--policy.{token}" for token in args.set]
-        + [
-            f"--steps={args.steps}",
-            f"--save_freq={args.save_every}",
-            f"--log_freq={args.save_every}",
-            "--num_workers=0",
-            f"--seed={args.seed}",
-        ]
-        + ([f"--batch_size={args.batch_size}"] if args.batch_size else [])
-    )
-    command = train_command(dataset, f"local/{args.task}", run_dir, recipe=recipe_path(args.recipe), flags=flags)
-    print(" ".join(command), flush=True)
-    cpu_before = children_cpu_seconds()
-    wall = run(command, log=args.work_dir / "train.log", threads=args.threads)
-    cpu_minutes = (children_cpu_seconds() - cpu_before) / 60
-
+    if args.run_dir is not None:
+        run_dir, (command, training) = args.run_dir, finished_run(args.run_dir)
+    else:
+        run_dir, command, training = train(args)
     held_out = HeldOut(args)
     baselines = held_out.baselines()
     print(json.dumps({"baselines": baselines}), flush=True)
@@ -196,15 +224,16 @@ def main() -> None:
     for checkpoint in sorted((run_dir / "checkpoints").glob("[0-9]*"), key=lambda p: int(p.name)):
         step = int(checkpoint.name)
         policy = load_goal_predictor(checkpoint / "pretrained_model")
-        row = {"step": step, "cpu_minutes": cpu_minutes * step / args.steps} | held_out.score(policy)
+        row = {"step": step, **{key: value * step / training["steps"] for key, value in training["minutes"].items()}}
+        row |= held_out.score(policy)
         rows.append(row)
         print(json.dumps(row), flush=True)
     payload = {
         "machine": machine_info(),
         "arguments": {k: str(v) for k, v in vars(args).items()},
         "train_command": " ".join(command),
-        "train_wall_seconds": wall,
-        "train_cpu_minutes": cpu_minutes,
+        "run_dir": str(run_dir),
+        "training": training,
         "baselines": baselines,
         "rows": rows,
     }
