@@ -7,7 +7,8 @@ folder, or a Hub repo id resolved by huggingface_hub (its cache and `HF_HUB_OFFL
 
 A task whose goals are executed by a learnt policy (cloth_hang) ships that `gc_dp3` executor under the same
 name, in `pretrained/<name>/executor/`: `resolve_executor("cloth_hang")` finds it, so one name gives the
-whole pipeline.
+whole pipeline. A goal scorer trained on a predictor's executed samples (`lerobot_taxdpd.scoring`) ships in
+`pretrained/<name>/scorer/`, so `--goal-selection scorer` finds it by the same name.
 
     python -m lerobot_taxdpd.goal_predictors list                    # names, tasks and measured metrics
     python -m lerobot_taxdpd.goal_predictors path mug_easyrack       # a folder for `--goal-policy.path=...`
@@ -26,6 +27,8 @@ from lerobot_taxdpd.data.schema import METRICS_FILE
 SHIPPED_DIR = Path(__file__).parent / "pretrained"
 #: Where a shipped name keeps its gc_dp3 executor, if its task has one.
 EXECUTOR_DIR = "executor"
+#: Where a shipped name keeps the goal scorer trained on its samples, if it has one.
+SCORER_DIR = "scorer"
 
 
 def _shipped() -> dict[str, Path]:
@@ -69,6 +72,28 @@ def resolve_executor(name_or_path: str | Path) -> str:
     return _resolve(name_or_path, shipped_executors(), "executor", "gc_dp3")
 
 
+def shipped_scorers() -> dict[str, Path]:
+    """Shipped names that come with a goal scorer -> its folder."""
+    return {
+        name: folder / SCORER_DIR
+        for name, folder in _shipped().items()
+        if (folder / SCORER_DIR / "config.json").is_file()
+    }
+
+
+def load_scorer(name_or_path: str | Path):
+    """A `GoalScorer` (eval mode) for a shipped name that has one, a scorer folder or a Hub repo id."""
+    from lerobot_taxdpd.scoring.model import GoalScorer
+
+    source = _resolve(name_or_path, shipped_scorers(), "goal scorer", "goal scorer")
+    try:
+        return GoalScorer.from_pretrained(source).eval()
+    except OSError as error:
+        if Path(source).is_dir():
+            raise
+        raise FileNotFoundError(_hub_failure(source).replace("goal predictor", "goal scorer")) from error
+
+
 def _resolve(name_or_path: str | Path, shipped: dict[str, Path], kind: str, policy_type: str) -> str:
     text = str(name_or_path)
     if text in shipped:
@@ -77,13 +102,14 @@ def _resolve(name_or_path: str | Path, shipped: dict[str, Path], kind: str, poli
     if path.is_dir():
         if not (path / "config.json").is_file():
             raise FileNotFoundError(
-                f"{path}: not a {policy_type} checkpoint (no config.json); pass its pretrained_model folder"
+                f"{path}: not a {policy_type} checkpoint (no config.json)"
+                + ("; pass its pretrained_model folder" if policy_type in ("taxdpd", "gc_dp3") else "")
             )
         return str(path)
     parts = text.split("/")
     if len(parts) == 2 and all(parts):
         return text
-    known = ", ".join(shipped) or "none (this install ships no checkpoints)"
+    known = ", ".join(shipped) or f"none (this install ships no {kind}s)"
     raise ValueError(
         f"unknown {kind} {text!r}: not a shipped name, a checkpoint folder or a Hub repo id "
         f"'owner/name'; shipped names: {known}"

@@ -2,8 +2,8 @@
 
 The paper executes one sample. When most samples are right, the right ones agree with each other (they sit
 on the same few valid goals) while the wrong ones scatter, so the sample with the most neighbours is more
-often a valid goal than a sample taken blindly: a vote among the K, with no learned scorer (RPDiff trains a
-success classifier for the same job).
+often a valid goal than a sample taken blindly: a vote among the K. A learned scorer (`lerobot_taxdpd.scoring`,
+trained on executed samples, as RPDiff trains a success classifier) picks the sample it scores highest.
 """
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ import numpy as np
 
 from lerobot_taxdpd.maths.metrics import pairwise_rmse
 
-#: `first`: the first sample (the paper's one shot); `consensus`: the sample most others agree with.
-GOAL_SELECTIONS = ("first", "consensus")
+#: `first`: the first sample (the paper's one shot); `consensus`: the sample most others agree with; `scorer`:
+#: the sample a learned scorer rates highest.
+GOAL_SELECTIONS = ("first", "consensus", "scorer")
 
 
 def consensus_index(samples: np.ndarray, radius: float) -> int:
@@ -40,11 +41,18 @@ def check_goal_selection(selection: str) -> str:
     return selection
 
 
-def executed_first(samples: np.ndarray, selection: str, radius: float) -> tuple[np.ndarray, int]:
+def executed_first(
+    samples: np.ndarray, selection: str, radius: float, scores: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
     """The samples reordered so that the one to execute comes first (the others keep their order), and the
-    index it had. Callers then execute row 0 whatever the rule."""
+    index it had. Callers then execute row 0 whatever the rule; `scorer` needs the K `scores`."""
     if check_goal_selection(selection) == "first":
         return samples, 0
-    index = consensus_index(samples, radius)
+    if selection == "scorer":
+        if scores is None or len(scores) != len(samples):
+            raise ValueError("goal selection 'scorer': needs one score per sample (give a scorer)")
+        index = int(np.argmax(scores))
+    else:
+        index = consensus_index(samples, radius)
     order = [index, *(i for i in range(len(samples)) if i != index)]
     return samples[order], index

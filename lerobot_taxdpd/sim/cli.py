@@ -32,6 +32,7 @@ RIGID_ONLY = {
     "placement_frames": "--placement-frames",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
+    "scorer_path": "--scorer.path",
 }
 CLOTH_ONLY = {
     "dataset": "--dataset",
@@ -108,9 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--goal-selection",
         choices=GOAL_SELECTIONS,
         default=None,
-        help="which of the K samples is executed: the first (the paper's one shot) or the one most other samples "
-        "agree with, within the coverage threshold (default: first on rigid tasks, as in the paper; consensus on "
-        "cloth_hang, where it was measured better)",
+        help="which of the K samples is executed: the first (the paper's one shot), the one most other samples "
+        "agree with, within the coverage threshold, or the one a learned scorer rates highest (--scorer.path) "
+        "(default: scorer when --scorer.path is given; else first on rigid tasks, as in the paper, and consensus "
+        "on cloth_hang, where it was measured better)",
     )
     evaluate.add_argument("--seed", type=int, default=0, help="trial i uses scene seed SEED + i (default: 0)")
     evaluate.add_argument("--split", choices=SPLITS, default="test", help="geometry split (default: test, held out)")
@@ -125,6 +127,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--device", default="cpu", help="where the policies run: cpu, cuda, ... (default: cpu)")
     add_threads_argument(evaluate)
     rigid = evaluate.add_argument_group("rigid tasks only")
+    rigid.add_argument(
+        "--scorer.path",
+        dest="scorer_path",
+        metavar="NAME_OR_PATH",
+        help="goal scorer for --goal-selection scorer: a shipped name that has one (its scorer/), a folder "
+        "written by `python -m lerobot_taxdpd.scoring train` or a Hub id",
+    )
     rigid.add_argument(
         "--predictor",
         help="instead of --goal-policy.path: 'oracle' (ground truth, checks the benchmark itself) or "
@@ -155,8 +164,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
     cloth.add_argument(
-        "--ship", type=Path, default=None, help="save the goal predictor as <SHIP>/cloth_hang and the executor as "
-        "<SHIP>/cloth_hang/executor, each with these results"
+        "--ship",
+        type=Path,
+        default=None,
+        help="save the goal predictor as <SHIP>/cloth_hang and the executor as "
+        "<SHIP>/cloth_hang/executor, each with these results",
     )
 
     pretrain = verbs.add_parser(
@@ -321,6 +333,25 @@ def _warn_if_trained_for_another_task(predictor, source: str, task: str) -> None
         )
 
 
+def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
+    """The selection rule and the scorer it needs: `--scorer.path` implies `scorer`; `--goal-selection scorer`
+    alone takes the scorer shipped with the goal predictor's name."""
+    from lerobot_taxdpd.goal_predictors import load_scorer
+
+    selection = args.goal_selection or ("scorer" if args.scorer_path else None)
+    if selection != "scorer":
+        if args.scorer_path:
+            raise ValueError(f"--scorer.path: only used with --goal-selection scorer, not {selection}")
+        return selection, None
+    source = args.scorer_path or goal_policy_path
+    if source is None:
+        raise ValueError("--goal-selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
+    try:
+        return selection, load_scorer(source)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"--scorer.path {source}: {error}") from error
+
+
 def _check_device(device: str) -> None:
     """`--device cuda` on a machine without a GPU: say so, before loading a policy fails with another message."""
     import torch
@@ -368,16 +399,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:
         predictor = load_predictor(args.predictor)
     output = args.output or OUTPUT["rigid"]
+    selection, scorer = _scorer_selection(args, goal_policy_path)
     report = evaluate(
         predictor,
         trials,
         args.num_samples,
-        **_given(goal_selection=args.goal_selection),
+        **_given(goal_selection=selection),
+        scorer=scorer,
         figures_dir=output / "figures",
         num_figures=args.figures,
         total=args.trials,
     )
     report["predictor"] = goal_policy_path or args.predictor
+    if scorer is not None:
+        report["scorer"] = args.scorer_path or goal_policy_path
     if args.placement_frames:
         report["placement_frames"] = args.placement_frames
     path = write_json(output / f"{task.name}_eval.json", report)

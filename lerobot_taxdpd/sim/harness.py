@@ -1,11 +1,12 @@
 """The evaluation harness: run a goal predictor on held-out trials and report it under DESIGN's names.
 
 For every trial the predictor samples K goal clouds; one is executed after RANSAC-SVD turns it into a pose:
-the first (one shot, no reranking, as in the paper) or, with `goal_selection="consensus"`, the sample the
-others agree with most (`maths.selection`). Errors are measured against the valid goal nearest
-to the executed sample (the demonstrated goal when the task has one mode and the object no symmetry),
-so a sample that solves the scene another valid way is not penalised. Multi-modal tasks also get
-coverage@K and precision@K, counting each mode (peg, slot, support, socket) once.
+the first (one shot, no reranking, as in the paper), with `goal_selection="consensus"` the sample the
+others agree with most (`maths.selection`), or with `"scorer"` the one a learned scorer rates highest.
+Errors are measured against the valid goal nearest to the executed sample (the demonstrated goal when the
+task has one mode and the object no symmetry), so a sample that solves the scene another valid way is not
+penalised. Multi-modal tasks also get coverage@K and precision@K, counting each mode (peg, slot, support,
+socket) once.
 
 Every random draw of a trial comes from its scene seed: the predictor gets a `torch.Generator` seeded with
 it (when its `sample_goals` takes `generator=`; torch's global generator is seeded with it otherwise) and
@@ -113,13 +114,18 @@ class TrialRun:
     predict_seconds: float
 
 
-def run_trial(predictor: GoalPredictor, trial: Trial, num_samples: int, goal_selection: str = "first") -> TrialRun:
-    """Sample K goals (from the trial's seed), pick one by `goal_selection`, fit a pose to it by RANSAC-SVD,
-    execute and score it."""
+def run_trial(
+    predictor: GoalPredictor, trial: Trial, num_samples: int, goal_selection: str = "first", scorer=None
+) -> TrialRun:
+    """Sample K goals (from the trial's seed), pick one by `goal_selection` (`scorer`: a `GoalScorer`), fit a
+    pose to it by RANSAC-SVD, execute and score it."""
     tick = time.perf_counter()
     samples = sample_trial_goals(predictor, trial, num_samples)
+    scores = None
+    if goal_selection == "scorer":
+        scores = scorer.score(torch.from_numpy(samples), torch.from_numpy(trial.scene_points)).numpy()
     predict_seconds = time.perf_counter() - tick
-    samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold)
+    samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold, scores)
     transform, _ = estimate_rigid_transform(
         trial.object_points.astype(np.float64), samples[0], generator=torch.Generator().manual_seed(trial.seed)
     )
@@ -141,6 +147,7 @@ def evaluate(
     num_samples: int,
     *,
     goal_selection: str = "first",
+    scorer=None,
     figures_dir: Path | None = None,
     num_figures: int = 3,
     progress: bool = True,
@@ -150,6 +157,8 @@ def evaluate(
     if num_samples < 1:
         raise ValueError(f"num_samples: must be at least 1, got {num_samples}")
     check_goal_selection(goal_selection)
+    if (goal_selection == "scorer") != (scorer is not None):
+        raise ValueError("goal selection 'scorer' and a scorer go together: give both or neither")
     predictor = as_goal_predictor(predictor)
     if figures_dir is not None:
         figures_dir = Path(figures_dir)
@@ -159,7 +168,7 @@ def evaluate(
     for index, trial in enumerate(tqdm(trials, total=total, desc="trials", disable=not progress)):
         task = trial.task
         tick = time.perf_counter()
-        run = run_trial(predictor, trial, num_samples, goal_selection)
+        run = run_trial(predictor, trial, num_samples, goal_selection, scorer)
         record = {**run.record, "predict_seconds": run.predict_seconds, "seconds": time.perf_counter() - tick}
         records.append(record)
         if figures_dir is not None and index < num_figures:
@@ -234,4 +243,3 @@ def _report(task, split: str, records: list[dict], num_samples: int, figures: li
         report[f"precision@{num_samples}"] = float(np.mean([r["precision"] for r in records]))
         report["coverage_threshold_mm"] = task.coverage_threshold * 1000
     return report
-

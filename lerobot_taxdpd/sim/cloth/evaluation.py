@@ -273,7 +273,8 @@ def evaluate(
             "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
-    check_goal_selection(goal_selection)
+    if check_goal_selection(goal_selection) == "scorer":
+        raise ValueError("goal selection 'scorer': cloth_hang has no goal scorer yet; use first or consensus")
     from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor
 
     policy_path = _resolved("--policy.path", policy_path, resolve_executor)

@@ -1,0 +1,90 @@
+"""Goal scorers: collect a goal predictor's executed samples on training scenes, train a scorer on them, and use
+it to choose which sample to execute (`sim eval --goal-selection scorer`).
+
+    python -m lerobot_taxdpd.scoring collect --task book_shelf --goal-policy.path book_shelf \\
+        --seeds 5000 5499 --output data/scorer/book_shelf          # rerun to finish a collection in legs
+    python -m lerobot_taxdpd.scoring train --collection data/scorer/book_shelf --output outputs/scorer/book_shelf
+    python -m lerobot_taxdpd.sim eval --task book_shelf --goal-policy.path book_shelf \\
+        --scorer.path outputs/scorer/book_shelf --seed 1000
+
+The scorer is a plain module with this CLI, not a third LeRobot policy: it acts on nothing (no observation to
+action), its examples are (scene, candidate goal, outcome) triples made from a predictor's samples rather than
+recorded episodes, and it trains in minutes; it saves, loads and pushes through huggingface_hub like the
+policies (`GoalScorer.from_pretrained` takes a folder or a Hub id).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m lerobot_taxdpd.scoring", description=__doc__.split("\n\n")[0].replace("\n", " ")
+    )
+    verbs = parser.add_subparsers(dest="verb", required=True)
+    collect = verbs.add_parser("collect", help="execute a goal predictor's samples on training scenes")
+    collect.add_argument("--task", required=True, help="a rigid procedural task (e.g. book_shelf)")
+    collect.add_argument("--goal-policy.path", dest="goal_policy_path", required=True, metavar="NAME_OR_PATH")
+    collect.add_argument(
+        "--seeds",
+        type=int,
+        nargs=2,
+        required=True,
+        metavar=("FIRST", "LAST"),
+        help="training-geometry scene seeds, inclusive; pick ones past the predictor's demonstrations (0..N-1)",
+    )
+    collect.add_argument("--output", type=Path, required=True, help="collection folder (shards and collection.json)")
+    collect.add_argument("--num-samples", type=int, default=10, help="samples per scene, K (default: 10)")
+    collect.add_argument("--shard-size", type=int, default=50, help="scenes per shard file (default: 50)")
+    add_threads_argument(collect)
+    train = verbs.add_parser("train", help="train a scorer on a collection")
+    train.add_argument("--collection", type=Path, required=True)
+    train.add_argument("--output", type=Path, required=True, help="folder for the scorer (config, weights, metrics)")
+    train.add_argument("--steps", type=int, default=2000)
+    train.add_argument("--batch-scenes", type=int, default=8, help="scenes a step, each with all its K samples")
+    train.add_argument("--seed", type=int, default=0)
+    add_threads_argument(train)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_threads(args.threads)
+    try:
+        if args.verb == "collect":
+            from lerobot_taxdpd.scoring.collect import collect
+
+            first, last = args.seeds
+            if last < first:
+                raise ValueError(f"--seeds: LAST ({last}) is before FIRST ({first})")
+            shards = collect(
+                args.task,
+                args.goal_policy_path,
+                range(first, last + 1),
+                args.output,
+                num_samples=args.num_samples,
+                shard_size=args.shard_size,
+            )
+            print(f"{len(shards)} shards in {args.output}")
+        else:
+            from lerobot_taxdpd.scoring.training import train_scorer
+
+            metrics = train_scorer(
+                args.collection, args.output, steps=args.steps, batch_scenes=args.batch_scenes, seed=args.seed
+            )
+            print(json.dumps(metrics["held_back_scenes"]))
+            print(f"scorer saved in {args.output}")
+    except (ValueError, FileNotFoundError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,151 @@
+"""Labelled goal samples for a scorer: a goal predictor's K samples on training scenes, each one executed.
+
+Only the training geometry is used (`split="train"`), at scene seeds the caller picks; pick seeds the goal
+predictor's demonstrations did not use (they start at 0), so the samples are as wrong as on unseen scenes.
+The held-out trials that evaluations report are never touched.
+
+Scenes are written in shards of `shard_size` (`shard_<first>_<last>.npz`, each written whole, then renamed),
+so a collection runs in legs: a rerun with the same arguments skips the shards in place and adds the rest.
+`collection.json` records what made them (task, goal predictor and its weights' hash, K, split), and a rerun
+with other options is refused rather than mixed in.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from lerobot_taxdpd.maths.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.maths.metrics import score_against_valid_goals
+
+COLLECTION_FILE = "collection.json"
+#: Arrays of a shard, per scene: seed (n,), scene (n, S, 3), object (n, N, 3), samples (n, K, N, 3), success
+#: (n, K) from executing each sample, rmse (n, K) metres to the nearest valid goal.
+SHARD_ARRAYS = ("seed", "scene", "object", "samples", "success", "rmse")
+
+
+def weights_digest(checkpoint: str | Path) -> str:
+    """A short hash of a checkpoint's weights: a scorer learns one goal predictor's mistakes."""
+    weights = Path(checkpoint) / "model.safetensors"
+    return hashlib.sha256(weights.read_bytes()).hexdigest()[:16] if weights.is_file() else "unknown"
+
+
+def shard_paths(folder: Path) -> list[Path]:
+    return sorted(Path(folder).glob("shard_*.npz"))
+
+
+def label_samples(trial, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Execute every sample of one trial (RANSAC-SVD pose, then the task's controller and success check, as the
+    harness executes its chosen one): success (K,) and RMSE (K,) to the nearest valid goal."""
+    from lerobot_taxdpd.sim.trials import execute
+
+    object_points = trial.object_points.astype(np.float64)
+    success = np.zeros(len(samples), dtype=bool)
+    for k, sample in enumerate(samples):
+        transform, _ = estimate_rigid_transform(
+            object_points, sample, generator=torch.Generator().manual_seed(trial.seed)
+        )
+        success[k] = execute(trial, transform).success
+    goals = np.concatenate([transform_points(t, object_points) for t in trial.valid_transforms()])
+    return success, score_against_valid_goals(samples, goals).nearest_rmse.astype(np.float32)
+
+
+def collect(
+    task_name: str,
+    goal_policy: str,
+    seeds: Iterable[int],
+    output: Path,
+    *,
+    num_samples: int = 10,
+    shard_size: int = 50,
+    progress: bool = True,
+) -> list[Path]:
+    """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor, resolve_goal_predictor
+    from lerobot_taxdpd.sim.harness import sample_trial_goals
+    from lerobot_taxdpd.sim.tasks import get_task
+    from lerobot_taxdpd.sim.trials import make_trial
+
+    task, source, seeds = get_task(task_name), resolve_goal_predictor(goal_policy), list(seeds)
+    if num_samples < 2:
+        raise ValueError(f"num_samples: a scorer chooses among samples, so at least 2, got {num_samples}")
+    output = Path(output)
+    output.mkdir(parents=True, exist_ok=True)
+    _check_collection(
+        output / COLLECTION_FILE,
+        {
+            "task": task.name,
+            "split": "train",
+            "goal_policy": str(goal_policy),
+            "goal_policy_weights": weights_digest(source),
+            "num_samples": num_samples,
+        },
+    )
+    predictor = load_goal_predictor(source)
+    chunks = [seeds[i : i + shard_size] for i in range(0, len(seeds), shard_size)]
+    todo = [c for c in chunks if not (output / _shard_name(c)).is_file()]
+    bar = tqdm(total=sum(map(len, todo)), desc=f"{task.name} scenes", disable=not progress)
+    for chunk in todo:
+        rows = {name: [] for name in SHARD_ARRAYS}
+        for seed in chunk:
+            trial = make_trial(task, seed, "train")
+            samples = sample_trial_goals(predictor, trial, num_samples)
+            success, rmse = label_samples(trial, samples)
+            for name, value in zip(
+                SHARD_ARRAYS, (seed, trial.scene_points, trial.object_points, samples, success, rmse), strict=True
+            ):
+                rows[name].append(np.asarray(value, dtype=np.float32) if name in ("scene", "object", "samples")
+                                  else value)  # fmt: skip
+            bar.update()
+        _write_shard(output / _shard_name(chunk), {name: np.stack(values) for name, values in rows.items()})
+    bar.close()
+    return shard_paths(output)
+
+
+def _shard_name(seeds: list[int]) -> str:
+    return f"shard_{seeds[0]:06d}_{seeds[-1]:06d}.npz"
+
+
+def _write_shard(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    partial = path.with_suffix(".partial.npz")
+    np.savez(partial, **arrays)
+    os.replace(partial, path)  # a leg stopped mid-shard leaves no half-written shard behind
+
+
+def _check_collection(path: Path, details: dict) -> None:
+    if path.is_file():
+        held = json.loads(path.read_text())
+        differences = {k: (held.get(k), v) for k, v in details.items() if held.get(k) != v}
+        if differences:
+            listed = ", ".join(f"{k} {old!r}, not {new!r}" for k, (old, new) in differences.items())
+            raise ValueError(
+                f"{path.parent}: holds samples collected with other options ({listed}); use another folder"
+            )
+        return
+    path.write_text(json.dumps(details, indent=2))
+
+
+def load_collection(folder: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """What made a collection and its shards, concatenated in seed order."""
+    folder = Path(folder)
+    if not (folder / COLLECTION_FILE).is_file():
+        raise FileNotFoundError(f"{folder}: no {COLLECTION_FILE}; collect samples there first")
+    shards = shard_paths(folder)
+    if not shards:
+        raise FileNotFoundError(f"{folder}: no shard_*.npz; the collection has not written a shard yet")
+    loaded = []
+    for shard in shards:
+        with np.load(shard) as data:
+            missing = [name for name in SHARD_ARRAYS if name not in data]
+            if missing:
+                raise ValueError(f"{shard}: missing arrays {missing}")
+            loaded.append({name: data[name] for name in SHARD_ARRAYS})
+    arrays = {name: np.concatenate([shard[name] for shard in loaded]) for name in SHARD_ARRAYS}
+    return json.loads((folder / COLLECTION_FILE).read_text()), arrays

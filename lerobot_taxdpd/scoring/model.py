@@ -1,0 +1,70 @@
+"""A learned goal scorer: how likely a candidate goal cloud is to be executed successfully in its scene.
+
+The goal predictor's K samples often hold a good goal that the first sample is not (book_shelf: a sample that
+places in half the scenes, the first in a tenth). What tells them apart is contact geometry: does the book
+stand on the shelf's floor between its neighbours or float, tilt or cut into them. So the scorer looks at each
+candidate goal point together with its nearest scene points (their offsets, in object units, centred on the
+candidate), a DP3-style per-point MLP pooled over the candidate, and a small head: one logit per candidate.
+Nothing in it depends on where the scene is, and it is trained under random turns about the vertical.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from huggingface_hub import PyTorchModelHubMixin
+from torch import Tensor, nn
+
+from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import PointCloudEncoder, mlp
+
+
+@dataclass
+class GoalScorerConfig:
+    #: Candidate points the scorer looks at (the first ones: recorded clouds are in FPS order).
+    num_goal_points: int = 128
+    #: Nearest scene points described around each candidate point.
+    num_neighbors: int = 8
+    hidden_dims: tuple[int, ...] = (64, 128, 256)
+    feature_dim: int = 256
+    #: Model units per metre: the training data's median object radius becomes 3, as in the goal predictor.
+    point_scale: float = 1.0
+
+
+class GoalScorer(nn.Module, PyTorchModelHubMixin, library_name="lerobot_taxdpd", tags=["goal-scorer"]):
+    """Candidate goal clouds (B, N, 3) in their scenes (B, S, 3), metres -> success logits (B,)."""
+
+    def __init__(self, config: GoalScorerConfig | dict | None = None) -> None:
+        super().__init__()
+        if isinstance(config, dict):  # as `from_pretrained` reads it back from config.json
+            config = GoalScorerConfig(**{**config, "hidden_dims": tuple(config["hidden_dims"])})
+        self.config = config or GoalScorerConfig()
+        channels = 3 + 4 * self.config.num_neighbors  # the point, then each neighbour's offset and distance
+        self.encoder = PointCloudEncoder(channels, self.config.hidden_dims, self.config.feature_dim)
+        self.head = mlp(self.config.feature_dim, (128, 1))
+
+    def point_features(self, goals: Tensor, scenes: Tensor) -> Tensor:
+        """(B, n, 3 + 4k): each of the first n candidate points, centred and scaled, and its k nearest scene
+        points as offsets and distances, nearest first."""
+        config = self.config
+        goals = goals[:, : config.num_goal_points]
+        centre = goals.mean(1, keepdim=True)
+        goals, scenes = (goals - centre) * config.point_scale, (scenes - centre) * config.point_scale
+        k = min(config.num_neighbors, scenes.shape[1])
+        distances, index = torch.cdist(goals, scenes).topk(k, dim=-1, largest=False)
+        neighbours = torch.gather(
+            scenes.unsqueeze(1).expand(-1, goals.shape[1], -1, -1), 2, index.unsqueeze(-1).expand(-1, -1, -1, 3)
+        )
+        offsets = neighbours - goals.unsqueeze(2)
+        features = torch.cat([offsets, distances.unsqueeze(-1)], -1).flatten(2)
+        if k < config.num_neighbors:  # a scene smaller than k points: pad as if the rest were far away
+            features = nn.functional.pad(features, (0, 4 * (config.num_neighbors - k)), value=10.0)
+        return torch.cat([goals, features], -1)
+
+    def forward(self, goals: Tensor, scenes: Tensor) -> Tensor:
+        return self.head(self.encoder(self.point_features(goals, scenes))).squeeze(-1)
+
+    @torch.no_grad()
+    def score(self, samples: Tensor, scene: Tensor) -> Tensor:
+        """K samples (K, N, 3) of one scene (S, 3) -> their K logits."""
+        return self(samples.float(), scene.float().expand(len(samples), -1, -1))

@@ -1,0 +1,123 @@
+"""Training a goal scorer on a collection (`scoring.collect`): which of a scene's K samples to execute.
+
+Two terms per scene of a batch, all K samples together: a per-sample success logit (binary cross-entropy),
+and, in scenes where some samples succeeded, a softmax over the K that puts the mass on those (the choice the
+scorer is used for). Every scene is turned by a random angle about the vertical (gravity stays down). A tenth
+of the collection's scenes, the last seeds, is held back to report what choosing by the score does there
+beside the first sample and the best a perfect chooser could do.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+from torch.nn import functional as F
+
+from lerobot_taxdpd.data.scaling import object_radius
+from lerobot_taxdpd.scoring.collect import load_collection
+from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
+
+METRICS_FILE = "metrics.json"
+
+
+def _turned(points: Tensor, angles: Tensor) -> Tensor:
+    """Each batch row (B, ..., 3) turned about the vertical by its angle."""
+    cos, sin = angles.cos(), angles.sin()
+    shape = (-1,) + (1,) * (points.dim() - 2)
+    x, y = points[..., 0], points[..., 1]
+    c, s = cos.view(shape), sin.view(shape)
+    return torch.stack([c * x - s * y, s * x + c * y, points[..., 2]], -1)
+
+
+def scene_losses(scorer: GoalScorer, samples: Tensor, scenes: Tensor, success: Tensor) -> Tensor:
+    """Scenes (B, S, 3), their K samples (B, K, N, 3) and outcomes (B, K) -> the loss."""
+    batch, k = success.shape
+    logits = scorer(samples.flatten(0, 1), scenes.repeat_interleave(k, 0)).view(batch, k)
+    target = success.float()
+    per_sample = F.binary_cross_entropy_with_logits(logits, target)
+    solvable = target.sum(1) > 0
+    choice = -(torch.log_softmax(logits, 1) * target / target.sum(1, keepdim=True).clamp_min(1)).sum(1)
+    return per_sample + (choice * solvable).sum() / solvable.sum().clamp_min(1)
+
+
+def choice_rates(scores: np.ndarray, success: np.ndarray) -> dict[str, float]:
+    """Success of executing the highest-scored sample of each scene, the first, and the best possible."""
+    picked = success[np.arange(len(success)), scores.argmax(1)]
+    return {
+        "scorer": float(picked.mean()),
+        "first_sample": float(success[:, 0].mean()),
+        "any_sample": float(success.any(1).mean()),
+        "scenes": len(success),
+    }
+
+
+def train_scorer(
+    collection: Path,
+    output: Path,
+    *,
+    steps: int = 2000,
+    batch_scenes: int = 8,
+    learning_rate: float = 1e-3,
+    validation_fraction: float = 0.1,
+    seed: int = 0,
+    config: GoalScorerConfig | None = None,
+) -> dict:
+    """Train, report on the held-back scenes, and save the scorer (config, weights, metrics) in `output`."""
+    details, data = load_collection(collection)
+    scenes = len(data["seed"])
+    held = max(1, round(scenes * validation_fraction)) if scenes > 1 else 0
+    if scenes - held < 1:
+        raise ValueError(f"{collection}: {scenes} scenes; a scorer needs at least 2 (one to train, one to check)")
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    radius = float(object_radius(torch.from_numpy(data["object"])).median())
+    config = config or GoalScorerConfig()
+    config.point_scale = 3.0 / radius  # as the goal predictor: the median object radius is 3 model units
+    scorer = GoalScorer(config)
+    optimizer = torch.optim.AdamW(scorer.parameters(), lr=learning_rate, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * step / steps)))
+    tensors = {name: torch.from_numpy(data[name]) for name in ("scene", "samples", "success")}
+    train_rows = np.arange(scenes - held)
+    started, losses = time.perf_counter(), []
+    scorer.train()
+    for _ in range(steps):
+        rows = torch.from_numpy(rng.choice(train_rows, size=min(batch_scenes, len(train_rows)), replace=False))
+        angles = torch.from_numpy(rng.uniform(-math.pi, math.pi, len(rows))).float()
+        loss = scene_losses(
+            scorer,
+            _turned(tensors["samples"][rows], angles),
+            _turned(tensors["scene"][rows], angles),
+            tensors["success"][rows],
+        )
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        losses.append(float(loss))
+    scorer.eval()
+    validation = {}
+    if held:
+        rows = np.arange(scenes - held, scenes)
+        scores = np.stack([scorer.score(tensors["samples"][i], tensors["scene"][i]).numpy() for i in rows])
+        validation = choice_rates(scores, data["success"][rows])
+    metrics = {
+        "collection": details,
+        "training_scenes": int(scenes - held),
+        "training_seeds": f"{int(data['seed'][0])}..{int(data['seed'][scenes - held - 1])}",
+        "steps": steps,
+        "batch_scenes": batch_scenes,
+        "train_seconds": time.perf_counter() - started,
+        "final_loss": float(np.mean(losses[-50:])),
+        "held_back_scenes": validation,
+        "label_success_rate": float(data["success"].mean()),
+    }
+    output = Path(output)
+    scorer.save_pretrained(output)
+    (output / METRICS_FILE).write_text(json.dumps(metrics, indent=2))
+    return metrics
