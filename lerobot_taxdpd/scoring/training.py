@@ -99,7 +99,7 @@ def train_scorer(
         loss.backward()
         optimizer.step()
         schedule.step()
-        losses.append(float(loss))
+        losses.append(loss.item())
     scorer.eval()
     validation = {}
     if held:

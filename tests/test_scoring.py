@@ -1,0 +1,102 @@
+"""Goal scorers: labelled samples collected from real executions in legs, a scorer that learns to choose the
+sample that works where the first one usually does not, and the evaluation option that uses it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lerobot_taxdpd.goal_predictors import load_scorer
+from lerobot_taxdpd.maths.selection import executed_first
+from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
+from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
+from lerobot_taxdpd.scoring.training import train_scorer
+from lerobot_taxdpd.sim.cli import main as sim_main
+
+
+def test_the_scorer_rule_executes_the_highest_scored_sample():
+    samples = np.arange(4 * 2 * 3, dtype=float).reshape(4, 2, 3)
+    reordered, index = executed_first(samples, "scorer", radius=0.02, scores=np.array([0.1, -2.0, 3.0, 0.5]))
+    assert index == 2
+    np.testing.assert_array_equal(reordered, samples[[2, 0, 1, 3]])
+    with pytest.raises(ValueError, match="needs one score per sample"):
+        executed_first(samples, "scorer", radius=0.02)
+
+
+def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options(tmp_path):
+    folder = tmp_path / "collection"
+    first = collect("mug_easyrack", "mug_easyrack", range(5000, 5001), folder, num_samples=3, shard_size=1)
+    assert [p.name for p in first] == ["shard_005000_005000.npz"]
+    stamp = first[0].stat().st_mtime_ns
+    both = collect("mug_easyrack", "mug_easyrack", range(5000, 5002), folder, num_samples=3, shard_size=1)
+    assert len(both) == 2 and both[0].stat().st_mtime_ns == stamp, "a second leg adds shards, keeps the first"
+    assert not list(folder.glob("*.partial*")), "no half-written shard is left behind"
+    details, data = load_collection(folder)
+    assert details["task"] == "mug_easyrack" and details["split"] == "train" and details["num_samples"] == 3
+    assert set(data) == set(SHARD_ARRAYS) and data["seed"].tolist() == [5000, 5001]
+    assert data["samples"].shape[:2] == (2, 3) and data["samples"].shape[2:] == data["object"].shape[1:]
+    assert data["success"].dtype == bool and data["success"].shape == (2, 3)
+    # Success is the executed outcome, not the distance: a sample far from every valid goal never succeeds.
+    assert not data["success"][data["rmse"] > 0.05].any()
+    with pytest.raises(ValueError, match="num_samples 3, not 4"):
+        collect("mug_easyrack", "mug_easyrack", range(5002, 5003), folder, num_samples=4, shard_size=1)
+    assert json.loads((folder / COLLECTION_FILE).read_text())["num_samples"] == 3
+
+
+def _resting_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:
+    """A shelf board and a box above it; one of the K candidate boxes rests on the board, the others float
+    2-6 cm above it or cut 2-6 cm into it, at random places. Success: the resting one."""
+    board = np.concatenate([rng.uniform(-0.3, 0.3, (200, 2)), np.zeros((200, 1))], 1)
+    box = rng.uniform(-0.04, 0.04, (64, 3)) + [0, 0, 0.04]  # bottom face at z = 0
+    data = {"seed": [], "scene": [], "object": [], "samples": [], "success": [], "rmse": []}
+    for seed in range(scenes):
+        heights = rng.choice([-1, 1], k) * rng.uniform(0.02, 0.06, k)
+        heights[rng.integers(k)] = 0.0
+        places = np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), heights[:, None]], 1)
+        data["samples"].append(box[None] + places[:, None])
+        data["success"].append(heights == 0.0)
+        data["rmse"].append(np.abs(heights))
+        data["seed"].append(seed)
+        data["scene"].append(board + rng.normal(0, 0.001, board.shape))
+        data["object"].append(box)
+    return {name: np.asarray(values) for name, values in data.items()}
+
+
+def test_a_trained_scorer_picks_the_sample_that_rests_where_the_first_one_rarely_does(tmp_path):
+    rng = np.random.default_rng(0)
+    folder = tmp_path / "collection"
+    folder.mkdir()
+    arrays = _resting_scenes(rng, scenes=120, k=8)
+    np.savez(folder / "shard_000000_000119.npz", **{k: v.astype(np.float32) if v.dtype == float else v
+                                                   for k, v in arrays.items()})  # fmt: skip
+    (folder / COLLECTION_FILE).write_text(json.dumps({"task": "synthetic resting box", "num_samples": 8}))
+    torch.manual_seed(0)
+    config = GoalScorerConfig(num_goal_points=64, hidden_dims=(32, 64), feature_dim=64)
+    metrics = train_scorer(
+        folder, tmp_path / "scorer", steps=300, batch_scenes=8, validation_fraction=0.25, config=config
+    )
+    held = metrics["held_back_scenes"]
+    print(f"held-back scenes: scorer {held['scorer']:.2f}, first sample (baseline) {held['first_sample']:.2f}")
+    assert held["scenes"] == 30 and held["any_sample"] == 1.0
+    assert held["first_sample"] < 0.3, "the trivial choice must fail this task for the test to mean anything"
+    assert held["scorer"] >= 0.8
+    reloaded = load_scorer(tmp_path / "scorer")
+    samples, scene = torch.from_numpy(arrays["samples"][0]).float(), torch.from_numpy(arrays["scene"][0]).float()
+    trained = GoalScorer.from_pretrained(tmp_path / "scorer")
+    torch.testing.assert_close(reloaded.score(samples, scene), trained.score(samples, scene))
+
+
+def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsys):
+    common = ["eval", "--trials", "1", "--figures", "0", "--output", str(tmp_path)]
+    assert sim_main([*common, "--task", "mug_easyrack", "--goal-policy.path", "mug_easyrack",
+                     "--scorer.path", str(tmp_path), "--goal-selection", "first"]) != 0  # fmt: skip
+    assert "--scorer.path: only used with --goal-selection scorer" in capsys.readouterr().err
+    assert sim_main([*common, "--task", "mug_easyrack", "--goal-policy.path", "mug_easyrack",
+                     "--goal-selection", "scorer"]) != 0  # fmt: skip
+    assert "unknown goal scorer 'mug_easyrack'" in capsys.readouterr().err
+    assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang",
+                     "--scorer.path", str(tmp_path)]) != 0  # fmt: skip
+    assert "--scorer.path: only applies to a rigid task" in capsys.readouterr().err
