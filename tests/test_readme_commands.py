@@ -15,8 +15,9 @@ leading `VAR=value` set aside as environment):
   runs) builds the run's config from the command line and stops there. A `--config_path` inside the
   `--output_dir` of an earlier `lerobot-train` command (a resume) is that run's saved config, so it is parsed
   as that command's arguments followed by this one's;
-- a path argument (`--config_path`, `--dataset.root`, `--raw-dir`, `--policy.path`, `--goal-policy.path`) is
-  a file of the checkout, a shipped predictor name, or at or below a folder an earlier command writes
+- a path argument (`--config_path`, `--dataset.root`, `--raw-dir`, `--policy.path`, `--goal-policy.path`,
+  `--collection`, `--scorer.path`) is a file of the checkout, a shipped predictor name, or at or below a folder
+  an earlier command writes
   (its `--root`, `--output_dir`, `--output` or `--out`).
 
 What this cannot see is a command that parses but fails when it runs. The converter block's commands run for
@@ -55,7 +56,15 @@ from lerobot_taxdpd.goal_predictors import shipped_executors
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
 LEROBOT_CONFIGS = {"lerobot-train": TrainPipelineConfig, "lerobot-eval": EvalPipelineConfig}
-INPUT_FLAGS = ("--config_path", "--dataset.root", "--raw-dir", "--policy.path", "--goal-policy.path")
+INPUT_FLAGS = (
+    "--config_path",
+    "--dataset.root",
+    "--raw-dir",
+    "--policy.path",
+    "--goal-policy.path",
+    "--collection",
+    "--scorer.path",
+)
 OUTPUT_FLAGS = ("--root", "--output_dir", "--output", "--out")
 
 
