@@ -81,11 +81,16 @@ def shipped_scorers() -> dict[str, Path]:
     }
 
 
+def resolve_scorer(name_or_path: str | Path) -> str:
+    """A shipped name that has a scorer, an existing scorer folder, or a Hub repo id -> what `load_scorer` takes."""
+    return _resolve(name_or_path, shipped_scorers(), "goal scorer", "goal scorer")
+
+
 def load_scorer(name_or_path: str | Path):
     """A `GoalScorer` (eval mode) for a shipped name that has one, a scorer folder or a Hub repo id."""
     from lerobot_taxdpd.scoring.model import GoalScorer
 
-    source = _resolve(name_or_path, shipped_scorers(), "goal scorer", "goal scorer")
+    source = resolve_scorer(name_or_path)
     try:
         return GoalScorer.from_pretrained(source).eval()
     except OSError as error:

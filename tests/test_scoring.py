@@ -26,7 +26,7 @@ def test_the_scorer_rule_executes_the_highest_scored_sample():
         executed_first(samples, "scorer", radius=0.02)
 
 
-def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options(tmp_path):
+def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options(tmp_path, capsys):
     folder = tmp_path / "collection"
     first = collect("mug_easyrack", "mug_easyrack", range(5000, 5001), folder, num_samples=3, shard_size=1)
     assert [p.name for p in first] == ["shard_005000_005000.npz"]
@@ -44,6 +44,15 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
     with pytest.raises(ValueError, match="num_samples 3, not 4"):
         collect("mug_easyrack", "mug_easyrack", range(5002, 5003), folder, num_samples=4, shard_size=1)
     assert json.loads((folder / COLLECTION_FILE).read_text())["num_samples"] == 3
+
+    # A scorer of these samples, used with their predictor and with another one: only the second is warned.
+    train_scorer(folder, tmp_path / "scorer", steps=2, config=GoalScorerConfig(hidden_dims=(16,), feature_dim=16))
+    common = ["eval", "--trials", "1", "--figures", "0", "--scorer.path", str(tmp_path / "scorer")]
+    for task, warned in (("mug_easyrack", False), ("mug_medrack", True)):
+        assert sim_main([*common, "--task", task, "--goal-policy.path", task, "--output", str(tmp_path / task)]) == 0
+        report = json.loads((tmp_path / task / f"{task}_eval.json").read_text())
+        assert report["goal_selection"] == "scorer" and report["scorer"] == str(tmp_path / "scorer")
+        assert ("trained on the samples of another goal predictor" in capsys.readouterr().err) == warned
 
 
 def _resting_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:

@@ -336,7 +336,7 @@ def _warn_if_trained_for_another_task(predictor, source: str, task: str) -> None
 def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
     """The selection rule and the scorer it needs: `--scorer.path` implies `scorer`; `--goal-selection scorer`
     alone takes the scorer shipped with the goal predictor's name."""
-    from lerobot_taxdpd.goal_predictors import load_scorer
+    from lerobot_taxdpd.goal_predictors import load_scorer, resolve_scorer
 
     selection = args.goal_selection or ("scorer" if args.scorer_path else None)
     if selection != "scorer":
@@ -347,9 +347,31 @@ def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
     if source is None:
         raise ValueError("--goal-selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
     try:
-        return selection, load_scorer(source)
+        scorer = load_scorer(source)
     except (OSError, ValueError) as error:
         raise ValueError(f"--scorer.path {source}: {error}") from error
+    _warn_if_scorer_learnt_another_predictor(resolve_scorer(source), goal_policy_path)
+    return selection, scorer
+
+
+def _warn_if_scorer_learnt_another_predictor(scorer_folder: str, goal_policy_path: str | None) -> None:
+    """A scorer learns one predictor's mistakes: say so when the predictor evaluated is not the one whose samples
+    it was trained on (compared by the hash of the weights, where both are folders here)."""
+    from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
+    from lerobot_taxdpd.scoring.collect import weights_digest
+    from lerobot_taxdpd.scoring.training import METRICS_FILE
+
+    metrics = Path(scorer_folder) / METRICS_FILE
+    if goal_policy_path is None or not metrics.is_file():
+        return
+    trained_for = json.loads(metrics.read_text()).get("collection", {}).get("goal_policy_weights")
+    evaluated = weights_digest(resolve_goal_predictor(goal_policy_path))
+    if trained_for and evaluated != "unknown" and trained_for != evaluated:
+        print(
+            f"warning: --scorer.path {scorer_folder} was trained on the samples of another goal predictor than "
+            f"{goal_policy_path} (weights {trained_for}, not {evaluated}); collect and train it again for this one",
+            file=sys.stderr,
+        )
 
 
 def _check_device(device: str) -> None:
