@@ -13,6 +13,7 @@ from lerobot_taxdpd.goal_predictors import load_scorer
 from lerobot_taxdpd.maths.selection import executed_first
 from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
 from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
+from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
 from lerobot_taxdpd.sim.cli import main as sim_main
 
@@ -53,6 +54,19 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
         report = json.loads((tmp_path / task / f"{task}_eval.json").read_text())
         assert report["goal_selection"] == "scorer" and report["scorer"] == str(tmp_path / "scorer")
         assert ("trained on the samples of another goal predictor" in capsys.readouterr().err) == warned
+
+    # Shipped beside its predictor, with a paired evaluation and the commands that remake it; not beside another.
+    evaluation = evaluate_choice("mug_easyrack", "mug_easyrack", str(tmp_path / "scorer"), range(1), num_samples=3)
+    assert sum(evaluation["paired"].values()) == 1 and evaluation["first_sample"]["trials"] == 1
+    shipped = ship_scorer(tmp_path / "scorer", "mug_easyrack", evaluation, tmp_path / "pretrained")
+    assert shipped == tmp_path / "pretrained" / "mug_easyrack" / "scorer"
+    assert load_scorer(shipped).config == load_scorer(tmp_path / "scorer").config
+    card = (shipped / "README.md").read_text()
+    assert "python -m lerobot_taxdpd.scoring collect --task mug_easyrack --goal-policy.path mug_easyrack" in card
+    assert str(tmp_path) not in card and "the scorer's choice" in card
+    with pytest.raises(ValueError, match="trained on the samples of goal predictor weights"):
+        ship_scorer(tmp_path / "scorer", "mug_medrack", evaluation, tmp_path / "elsewhere")
+    assert not (tmp_path / "elsewhere").exists()
 
 
 def _resting_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:

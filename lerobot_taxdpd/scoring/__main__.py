@@ -6,6 +6,8 @@ it to choose which sample to execute (`sim eval --goal-selection scorer`).
     python -m lerobot_taxdpd.scoring train --collection data/scorer/book_shelf --output outputs/scorer/book_shelf
     python -m lerobot_taxdpd.sim eval --task book_shelf --goal-policy.path book_shelf \\
         --scorer.path outputs/scorer/book_shelf --seed 1000
+    python -m lerobot_taxdpd.scoring ship --scorer outputs/scorer/book_shelf --task book_shelf \\
+        --goal-policy.path book_shelf --ship lerobot_taxdpd/pretrained   # seeds 0-99, first vs scorer, paired
 
 The scorer is a plain module with this CLI, not a third LeRobot policy: it acts on nothing (no observation to
 action), its examples are (scene, candidate goal, outcome) triples made from a predictor's samples rather than
@@ -50,6 +52,14 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--batch-scenes", type=int, default=8, help="scenes a step, each with all its K samples")
     train.add_argument("--seed", type=int, default=0)
     add_threads_argument(train)
+    ship = verbs.add_parser("ship", help="measure a scorer against the first sample, paired, and ship it")
+    ship.add_argument("--scorer", type=Path, required=True, help="a folder written by `train`")
+    ship.add_argument("--task", required=True)
+    ship.add_argument("--goal-policy.path", dest="goal_policy_path", required=True, metavar="NAME_OR_PATH")
+    ship.add_argument("--trials", type=int, default=100, help="held-out trials, seeds 0..N-1 (default: 100)")
+    ship.add_argument("--num-samples", type=int, default=10)
+    ship.add_argument("--ship", type=Path, default=None, help="save it as <SHIP>/<task>/scorer (default: measure only)")
+    add_threads_argument(ship)
     return parser
 
 
@@ -72,6 +82,15 @@ def main(argv: list[str] | None = None) -> int:
                 shard_size=args.shard_size,
             )
             print(f"{len(shards)} shards in {args.output}")
+        elif args.verb == "ship":
+            from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
+
+            evaluation = evaluate_choice(
+                args.task, args.goal_policy_path, str(args.scorer), range(args.trials), args.num_samples
+            )
+            print(json.dumps(evaluation, indent=2))
+            if args.ship is not None:
+                print(f"shipped as {ship_scorer(args.scorer, args.goal_policy_path, evaluation, args.ship)}")
         else:
             from lerobot_taxdpd.scoring.training import train_scorer
 
