@@ -122,4 +122,19 @@ def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsy
     assert "unknown goal scorer 'mug_easyrack'" in capsys.readouterr().err
     assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang",
                      "--scorer.path", str(tmp_path)]) != 0  # fmt: skip
-    assert "--scorer.path: only applies to a rigid task" in capsys.readouterr().err
+    assert f"--scorer.path {tmp_path}: {tmp_path}: not a goal scorer checkpoint (no config.json)" in (
+        capsys.readouterr().err
+    )
+
+
+@pytest.mark.slow
+def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path):
+    """cloth_hang: each sampled goal is hung by the shipped gc_dp3 executor; its outcome is the label."""
+    folder = tmp_path / "cloth"
+    collect("cloth_hang", "cloth_hang", range(5000, 5001), folder, num_samples=2, shard_size=1)
+    details, data = load_collection(folder)
+    assert details["executor"].endswith("executor") and details["executor_weights"] != "unknown"
+    assert data["samples"].shape[:2] == (1, 2) and data["success"].shape == (1, 2)
+    assert np.isnan(data["rmse"]).all(), "no valid goals were computed, so no RMSE is claimed"
+    with pytest.raises(ValueError, match="only cloth_hang executes its goals with a policy"):
+        collect("mug_easyrack", "mug_easyrack", range(1), tmp_path / "rigid", executor="cloth_hang")

@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     verbs = parser.add_subparsers(dest="verb", required=True)
     collect = verbs.add_parser("collect", help="execute a goal predictor's samples on training scenes")
-    collect.add_argument("--task", required=True, help="a rigid procedural task (e.g. book_shelf)")
+    collect.add_argument("--task", required=True, help="a procedural task (e.g. book_shelf) or cloth_hang")
     collect.add_argument("--goal-policy.path", dest="goal_policy_path", required=True, metavar="NAME_OR_PATH")
     collect.add_argument(
         "--seeds",
@@ -44,6 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--output", type=Path, required=True, help="collection folder (shards and collection.json)")
     collect.add_argument("--num-samples", type=int, default=10, help="samples per scene, K (default: 10)")
     collect.add_argument("--shard-size", type=int, default=50, help="scenes per shard file (default: 50)")
+    collect.add_argument(
+        "--executor",
+        metavar="NAME_OR_PATH",
+        help="cloth_hang only: the gc_dp3 policy that hangs each sampled goal (default: the goal predictor's name)",
+    )
     add_threads_argument(collect)
     train = verbs.add_parser("train", help="train a scorer on a collection")
     train.add_argument("--collection", type=Path, required=True)
@@ -80,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.output,
                 num_samples=args.num_samples,
                 shard_size=args.shard_size,
+                executor=args.executor,
             )
             print(f"{len(shards)} shards in {args.output}")
         elif args.verb == "ship":

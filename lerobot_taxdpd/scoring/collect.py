@@ -12,10 +12,11 @@ with other options is refused rather than mixed in.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from lerobot_taxdpd.maths.metrics import score_against_valid_goals
 
 COLLECTION_FILE = "collection.json"
 #: Arrays of a shard, per scene: seed (n,), scene (n, S, 3), object (n, N, 3), samples (n, K, N, 3), success
-#: (n, K) from executing each sample, rmse (n, K) metres to the nearest valid goal.
+#: (n, K) from executing each sample, rmse (n, K) metres to the nearest valid goal (NaN where not computed).
 SHARD_ARRAYS = ("seed", "scene", "object", "samples", "success", "rmse")
 
 
@@ -65,48 +66,99 @@ def collect(
     *,
     num_samples: int = 10,
     shard_size: int = 50,
+    executor: str | None = None,
     progress: bool = True,
 ) -> list[Path]:
-    """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`."""
-    from lerobot_taxdpd.goal_predictors import load_goal_predictor, resolve_goal_predictor
-    from lerobot_taxdpd.sim.harness import sample_trial_goals
-    from lerobot_taxdpd.sim.tasks import get_task
-    from lerobot_taxdpd.sim.trials import make_trial
+    """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`.
 
-    task, source, seeds = get_task(task_name), resolve_goal_predictor(goal_policy), list(seeds)
+    Rigid tasks execute each sample as `sim eval` does; `cloth_hang` hangs the cloth with the gc_dp3 `executor`
+    (default: the one shipped with the goal predictor's name) conditioned on each sample, and stores no RMSE
+    (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger)."""
+    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor
+
     if num_samples < 2:
         raise ValueError(f"num_samples: a scorer chooses among samples, so at least 2, got {num_samples}")
+    source = resolve_goal_predictor(goal_policy)
+    details = {
+        "task": task_name,
+        "split": "train",
+        "goal_policy": str(goal_policy),
+        "goal_policy_weights": weights_digest(source),
+        "num_samples": num_samples,
+    }
+    if task_name == "cloth_hang":
+        executor = resolve_executor(executor or goal_policy)
+        details |= {"executor": str(executor), "executor_weights": weights_digest(executor)}
+        label_scene = functools.partial(_cloth_scene, source, executor, num_samples)
+    else:
+        if executor is not None:
+            raise ValueError(f"executor: only cloth_hang executes its goals with a policy, not {task_name}")
+        label_scene = _rigid_labeller(task_name, source, num_samples)
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
-    _check_collection(
-        output / COLLECTION_FILE,
-        {
-            "task": task.name,
-            "split": "train",
-            "goal_policy": str(goal_policy),
-            "goal_policy_weights": weights_digest(source),
-            "num_samples": num_samples,
-        },
-    )
-    predictor = load_goal_predictor(source)
+    _check_collection(output / COLLECTION_FILE, details)
+    seeds = list(seeds)
     chunks = [seeds[i : i + shard_size] for i in range(0, len(seeds), shard_size)]
     todo = [c for c in chunks if not (output / _shard_name(c)).is_file()]
-    bar = tqdm(total=sum(map(len, todo)), desc=f"{task.name} scenes", disable=not progress)
+    bar = tqdm(total=sum(map(len, todo)), desc=f"{task_name} scenes", disable=not progress)
     for chunk in todo:
         rows = {name: [] for name in SHARD_ARRAYS}
         for seed in chunk:
-            trial = make_trial(task, seed, "train")
-            samples = sample_trial_goals(predictor, trial, num_samples)
-            success, rmse = label_samples(trial, samples)
-            for name, value in zip(
-                SHARD_ARRAYS, (seed, trial.scene_points, trial.object_points, samples, success, rmse), strict=True
-            ):
-                rows[name].append(np.asarray(value, dtype=np.float32) if name in ("scene", "object", "samples")
-                                  else value)  # fmt: skip
+            for name, value in label_scene(seed).items():
+                rows[name].append(value)
             bar.update()
         _write_shard(output / _shard_name(chunk), {name: np.stack(values) for name, values in rows.items()})
     bar.close()
     return shard_paths(output)
+
+
+def _row(seed: int, scene, obj, samples, success, rmse) -> dict[str, np.ndarray]:
+    return {
+        "seed": np.int64(seed),
+        "scene": np.asarray(scene, dtype=np.float32),
+        "object": np.asarray(obj, dtype=np.float32),
+        "samples": np.asarray(samples, dtype=np.float32),
+        "success": np.asarray(success, dtype=bool),
+        "rmse": np.asarray(rmse, dtype=np.float32),
+    }
+
+
+def _rigid_labeller(task_name: str, source: str, num_samples: int) -> Callable[[int], dict[str, np.ndarray]]:
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.sim.harness import sample_trial_goals
+    from lerobot_taxdpd.sim.tasks import get_task
+    from lerobot_taxdpd.sim.trials import make_trial
+
+    task, predictor = get_task(task_name), load_goal_predictor(source)
+
+    def label(seed: int) -> dict[str, np.ndarray]:
+        trial = make_trial(task, seed, "train")
+        samples = sample_trial_goals(predictor, trial, num_samples)
+        return _row(seed, trial.scene_points, trial.object_points, samples, *label_samples(trial, samples))
+
+    return label
+
+
+def _cloth_scene(goal_policy: str, executor: str, num_samples: int, seed: int) -> dict[str, np.ndarray]:
+    """One cloth scene: K goals sampled from the start cloth and the hangers, each hung by the executor."""
+    from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
+    from lerobot_taxdpd.sim.cloth.evaluation import cached_executor, policy_controller, sample_goals
+    from lerobot_taxdpd.sim.cloth.rollout import rollout
+    from lerobot_taxdpd.sim.cloth.scene import sample_scene
+
+    env = ClothHangEnv("train")
+    try:
+        scene = sample_scene("train", seed, env.ranges)
+        env.reset(options={"scene": scene})
+        cloth, hangers = env.cloth_points(), env.hanger_points
+        samples = sample_goals(goal_policy, cloth, hangers, num_samples, seed)
+        success = []
+        for sample in samples:
+            torch.manual_seed(seed)  # as the evaluation seeds its executor's rollout
+            success.append(rollout(env, scene, policy_controller(*cached_executor(executor, "cpu"), sample)).success)
+    finally:
+        env.close()
+    return _row(seed, hangers, cloth, samples, success, np.full(num_samples, np.nan))
 
 
 def _shard_name(seeds: list[int]) -> str:

@@ -32,7 +32,6 @@ RIGID_ONLY = {
     "placement_frames": "--placement-frames",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
-    "scorer_path": "--scorer.path",
 }
 CLOTH_ONLY = {
     "dataset": "--dataset",
@@ -114,6 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: scorer when --scorer.path is given; else first on rigid tasks, as in the paper, and consensus "
         "on cloth_hang, where it was measured better)",
     )
+    evaluate.add_argument(
+        "--scorer.path",
+        dest="scorer_path",
+        metavar="NAME_OR_PATH",
+        help="goal scorer for --goal-selection scorer: a shipped name that has one (its scorer/), a folder "
+        "written by `python -m lerobot_taxdpd.scoring train` or a Hub id",
+    )
     evaluate.add_argument("--seed", type=int, default=0, help="trial i uses scene seed SEED + i (default: 0)")
     evaluate.add_argument("--split", choices=SPLITS, default="test", help="geometry split (default: test, held out)")
     evaluate.add_argument(
@@ -127,13 +133,6 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--device", default="cpu", help="where the policies run: cpu, cuda, ... (default: cpu)")
     add_threads_argument(evaluate)
     rigid = evaluate.add_argument_group("rigid tasks only")
-    rigid.add_argument(
-        "--scorer.path",
-        dest="scorer_path",
-        metavar="NAME_OR_PATH",
-        help="goal scorer for --goal-selection scorer: a shipped name that has one (its scorer/), a folder "
-        "written by `python -m lerobot_taxdpd.scoring train` or a Hub id",
-    )
     rigid.add_argument(
         "--predictor",
         help="instead of --goal-policy.path: 'oracle' (ground truth, checks the benchmark itself) or "
@@ -288,6 +287,7 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline, summary_line
 
     output = args.output or OUTPUT[CLOTH_TASK]
+    selection, scorer_path = _scorer_selection(args, args.goal_policy_path)
     summary = evaluate(
         split=args.split,
         seed=args.seed,
@@ -297,7 +297,7 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
         goal_policy_path=args.goal_policy_path,
         ground_truth_goals=bool(args.ground_truth_goals),
         num_goal_samples=args.num_samples,
-        **_given(goal_threshold=args.goal_threshold, goal_selection=args.goal_selection),
+        **_given(goal_threshold=args.goal_threshold, goal_selection=selection, scorer_path=scorer_path),
         figures=args.figures,
         workers=_workers(args),
         device=args.device,
@@ -333,9 +333,9 @@ def _warn_if_trained_for_another_task(predictor, source: str, task: str) -> None
         )
 
 
-def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
-    """The selection rule and the scorer it needs: `--scorer.path` implies `scorer`; `--goal-selection scorer`
-    alone takes the scorer shipped with the goal predictor's name."""
+def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None) -> tuple[str | None, str | None]:
+    """The selection rule and the scorer folder it needs: `--scorer.path` implies `scorer`; `--goal-selection
+    scorer` alone takes the scorer shipped with the goal predictor's name. Checked before any trial runs."""
     from lerobot_taxdpd.goal_predictors import load_scorer, resolve_scorer
 
     selection = args.goal_selection or ("scorer" if args.scorer_path else None)
@@ -347,11 +347,12 @@ def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
     if source is None:
         raise ValueError("--goal-selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
     try:
-        scorer = load_scorer(source)
+        folder = resolve_scorer(source)
+        load_scorer(folder)
     except (OSError, ValueError) as error:
         raise ValueError(f"--scorer.path {source}: {error}") from error
-    _warn_if_scorer_learnt_another_predictor(resolve_scorer(source), goal_policy_path)
-    return selection, scorer
+    _warn_if_scorer_learnt_another_predictor(folder, goal_policy_path)
+    return selection, folder
 
 
 def _warn_if_scorer_learnt_another_predictor(scorer_folder: str, goal_policy_path: str | None) -> None:
@@ -421,7 +422,12 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:
         predictor = load_predictor(args.predictor)
     output = args.output or OUTPUT["rigid"]
-    selection, scorer = _scorer_selection(args, goal_policy_path)
+    selection, scorer_path = _scorer_selection(args, goal_policy_path)
+    scorer = None
+    if scorer_path is not None:
+        from lerobot_taxdpd.goal_predictors import load_scorer
+
+        scorer = load_scorer(scorer_path)
     report = evaluate(
         predictor,
         trials,

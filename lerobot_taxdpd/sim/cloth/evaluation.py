@@ -53,6 +53,7 @@ class TrialRequest:
     num_goal_samples: int
     goal_selection: str
     goal_threshold: float
+    scorer_path: str | None
     figure_dir: str | None
     device: str
     torch_threads: int
@@ -117,7 +118,7 @@ def run_trial(request: TrialRequest) -> dict:
         if not goals:
             result["seconds"] = time.perf_counter() - started
             return result
-        executor = _executor(request.policy_path, request.device) if request.policy_path else None
+        executor = cached_executor(request.policy_path, request.device) if request.policy_path else None
         if request.ground_truth_goals and executor is not None:
             torch.manual_seed(request.seed)
             result["ground_truth_pair"] = list(keys[0])
@@ -138,8 +139,12 @@ def run_trial(request: TrialRequest) -> dict:
             # Each sample's RMSE to its nearest valid goal, in the order drawn: which rule would have picked a
             # valid goal can be read off any report.
             result["sample_goal_rmse"] = rmse.min(1).tolist()
+            scores = None
+            if request.goal_selection == "scorer":
+                scores = _scorer(request.scorer_path).score(torch.from_numpy(predicted), torch.from_numpy(hanger_cloud))
+                result["sample_scores"] = scores.tolist()
             predicted, result["executed_sample"] = executed_first(
-                predicted, request.goal_selection, request.goal_threshold
+                predicted, request.goal_selection, request.goal_threshold, None if scores is None else scores.numpy()
             )
             # The trivial baseline beside it: the start cloth, unchanged in shape and orientation, moved to the
             # centroid of the ground-truth goal.
@@ -181,9 +186,17 @@ def _outcome(episode: Episode) -> dict:
 
 
 @functools.lru_cache(maxsize=2)
-def _executor(path: str, device: str):
+def cached_executor(path: str, device: str):
     """The executor and its processors, loaded once per worker process (`policy_controller` resets it)."""
     return load_gc_dp3(path, device)
+
+
+@functools.lru_cache(maxsize=2)
+def _scorer(path: str):
+    """The goal scorer, loaded once per worker process."""
+    from lerobot_taxdpd.goal_predictors import load_scorer
+
+    return load_scorer(path)
 
 
 @functools.lru_cache(maxsize=2)
@@ -257,6 +270,7 @@ def evaluate(
     num_goal_samples: int = 10,
     goal_selection: str = "consensus",
     goal_threshold: float = 0.5,
+    scorer_path: str | None = None,
     figures: int = 3,
     workers: int = 1,
     device: str = "cpu",
@@ -273,12 +287,14 @@ def evaluate(
             "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
-    if check_goal_selection(goal_selection) == "scorer":
-        raise ValueError("goal selection 'scorer': cloth_hang has no goal scorer yet; use first or consensus")
-    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor
+    check_goal_selection(goal_selection)
+    if (goal_selection == "scorer") != (scorer_path is not None):
+        raise ValueError("goal selection 'scorer' and a scorer path go together: give both or neither")
+    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor, resolve_scorer
 
     policy_path = _resolved("--policy.path", policy_path, resolve_executor)
     goal_policy_path = _resolved("--goal-policy.path", goal_policy_path, resolve_goal_predictor)
+    scorer_path = _resolved("--scorer.path", scorer_path, resolve_scorer)
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     config = {
@@ -288,6 +304,7 @@ def evaluate(
         "goal_policy_path": goal_policy_path,
         "num_goal_samples": num_goal_samples,
         "goal_selection": goal_selection,
+        "scorer_path": scorer_path,
         "goal_threshold_m": goal_threshold,
         "device": device,
         "torch_threads_per_trial": torch.get_num_threads(),
@@ -302,6 +319,7 @@ def evaluate(
             num_goal_samples=num_goal_samples,
             goal_selection=goal_selection,
             goal_threshold=goal_threshold,
+            scorer_path=scorer_path,
             figure_dir=str(output / "figures") if i < figures else None,
             device=device,
             torch_threads=torch.get_num_threads(),
