@@ -4,14 +4,15 @@ sample that works where the first one usually does not, and the evaluation optio
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd.goal_predictors import load_scorer
+from lerobot_taxdpd.goal_predictors import load_scorer, resolve_goal_predictor, resolve_scorer
 from lerobot_taxdpd.maths.selection import executed_first
-from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
+from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection, weights_digest
 from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
 from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
@@ -138,3 +139,14 @@ def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path):
     assert np.isnan(data["rmse"]).all(), "no valid goals were computed, so no RMSE is claimed"
     with pytest.raises(ValueError, match="only cloth_hang executes its goals with a policy"):
         collect("mug_easyrack", "mug_easyrack", range(1), tmp_path / "rigid", executor="cloth_hang")
+
+
+def test_a_shipped_scorer_is_found_by_its_predictors_name(tmp_path):
+    """`--goal-selection scorer` alone takes the scorer shipped beside the goal predictor of that name."""
+    output = tmp_path / "eval"
+    assert sim_main(["eval", "--task", "book_shelf", "--goal-policy.path", "book_shelf", "--goal-selection",
+                     "scorer", "--trials", "1", "--figures", "0", "--output", str(output)]) == 0  # fmt: skip
+    report = json.loads((output / "book_shelf_eval.json").read_text())
+    assert report["goal_selection"] == "scorer" and report["scorer"] == "book_shelf"
+    card = json.loads((Path(resolve_scorer("book_shelf")) / "metrics.json").read_text())
+    assert card["collection"]["goal_policy_weights"] == weights_digest(resolve_goal_predictor("book_shelf"))

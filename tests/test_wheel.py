@@ -122,7 +122,8 @@ def test_a_recipe_is_a_shipped_name_or_a_file(tmp_path, capsys):
 
 
 def test_the_wheel_ships_every_checkpoint_file_of_the_checkout(wheel_site):
-    """Goal predictors and their executors (`<name>/executor/`) load by name only if the wheel carries them."""
+    """Goal predictors, their executors (`<name>/executor/`) and scorers (`<name>/scorer/`) load by name only if
+    the wheel carries them."""
     shipped = ROOT / "lerobot_taxdpd" / "pretrained"
     in_checkout = {p.relative_to(shipped) for p in shipped.rglob("*") if p.is_file() and "__pycache__" not in p.parts}
     packaged = wheel_site / "lerobot_taxdpd" / "pretrained"
