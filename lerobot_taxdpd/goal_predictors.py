@@ -18,6 +18,7 @@ whole pipeline. A goal scorer trained on a predictor's executed samples (`lerobo
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -72,6 +73,12 @@ def resolve_executor(name_or_path: str | Path) -> str:
     return _resolve(name_or_path, shipped_executors(), "executor", "gc_dp3")
 
 
+def weights_digest(checkpoint: str | Path) -> str:
+    """A short hash of a checkpoint's weights: a scorer learns one goal predictor's mistakes."""
+    weights = Path(checkpoint) / "model.safetensors"
+    return hashlib.sha256(weights.read_bytes()).hexdigest()[:16] if weights.is_file() else "unknown"
+
+
 def shipped_scorers() -> dict[str, Path]:
     """Shipped names that come with a goal scorer -> its folder."""
     return {
@@ -88,7 +95,7 @@ def resolve_scorer(name_or_path: str | Path) -> str:
 
 def load_scorer(name_or_path: str | Path):
     """A `GoalScorer` (eval mode) for a shipped name that has one, a scorer folder or a Hub repo id."""
-    from lerobot_taxdpd.scoring.model import GoalScorer
+    from lerobot_taxdpd.policies.goal_scorer import GoalScorer
 
     source = resolve_scorer(name_or_path)
     try:

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd.goal_predictors import load_scorer, resolve_goal_predictor, resolve_scorer
+from lerobot_taxdpd.goal_predictors import load_scorer, resolve_goal_predictor, resolve_scorer, weights_digest
 from lerobot_taxdpd.maths.selection import executed_first
-from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection, weights_digest
-from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
+from lerobot_taxdpd.policies.goal_scorer import GoalScorer, GoalScorerConfig
+from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
 from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
 from lerobot_taxdpd.sim.cli import main as sim_main

@@ -13,7 +13,6 @@ with other options is refused rather than mixed in.
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import os
 from collections.abc import Callable, Iterable
@@ -30,12 +29,6 @@ COLLECTION_FILE = "collection.json"
 #: Arrays of a shard, per scene: seed (n,), scene (n, S, 3), object (n, N, 3), samples (n, K, N, 3), success
 #: (n, K) from executing each sample, rmse (n, K) metres to the nearest valid goal (NaN where not computed).
 SHARD_ARRAYS = ("seed", "scene", "object", "samples", "success", "rmse")
-
-
-def weights_digest(checkpoint: str | Path) -> str:
-    """A short hash of a checkpoint's weights: a scorer learns one goal predictor's mistakes."""
-    weights = Path(checkpoint) / "model.safetensors"
-    return hashlib.sha256(weights.read_bytes()).hexdigest()[:16] if weights.is_file() else "unknown"
 
 
 def shard_paths(folder: Path) -> list[Path]:
@@ -74,7 +67,7 @@ def collect(
     Rigid tasks execute each sample as `sim eval` does; `cloth_hang` hangs the cloth with the gc_dp3 `executor`
     (default: the one shipped with the goal predictor's name) conditioned on each sample, and stores no RMSE
     (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger)."""
-    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor
+    from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor, weights_digest
 
     if num_samples < 2:
         raise ValueError(f"num_samples: a scorer chooses among samples, so at least 2, got {num_samples}")

@@ -13,8 +13,8 @@ import shlex
 import shutil
 from pathlib import Path
 
-from lerobot_taxdpd.scoring.collect import weights_digest
-from lerobot_taxdpd.scoring.training import METRICS_FILE
+from lerobot_taxdpd.data.schema import METRICS_FILE
+from lerobot_taxdpd.goal_predictors import weights_digest
 
 SCORER_FILES = ("config.json", "model.safetensors")
 

@@ -20,10 +20,9 @@ from torch import Tensor
 from torch.nn import functional as F
 
 from lerobot_taxdpd.data.scaling import object_radius
+from lerobot_taxdpd.data.schema import METRICS_FILE
+from lerobot_taxdpd.policies.goal_scorer import GoalScorer, GoalScorerConfig
 from lerobot_taxdpd.scoring.collect import load_collection
-from lerobot_taxdpd.scoring.model import GoalScorer, GoalScorerConfig
-
-METRICS_FILE = "metrics.json"
 
 
 def _turned(points: Tensor, angles: Tensor) -> Tensor:

@@ -358,9 +358,8 @@ def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None) ->
 def _warn_if_scorer_learnt_another_predictor(scorer_folder: str, goal_policy_path: str | None) -> None:
     """A scorer learns one predictor's mistakes: say so when the predictor evaluated is not the one whose samples
     it was trained on (compared by the hash of the weights, where both are folders here)."""
-    from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
-    from lerobot_taxdpd.scoring.collect import weights_digest
-    from lerobot_taxdpd.scoring.training import METRICS_FILE
+    from lerobot_taxdpd.data.schema import METRICS_FILE
+    from lerobot_taxdpd.goal_predictors import resolve_goal_predictor, weights_digest
 
     metrics = Path(scorer_folder) / METRICS_FILE
     if goal_policy_path is None or not metrics.is_file():
