@@ -59,13 +59,14 @@ def resolve_goal_predictor(name_or_path: str | Path) -> str:
     return _resolve(name_or_path, _shipped(), "goal predictor", "taxdpd")
 
 
+def _shipped_beside(subdir: str) -> dict[str, Path]:
+    """Shipped names that keep a checkpoint in `<name>/<subdir>/` -> that folder."""
+    return {name: folder / subdir for name, folder in _shipped().items() if (folder / subdir / "config.json").is_file()}
+
+
 def shipped_executors() -> dict[str, Path]:
     """Shipped names that come with a gc_dp3 executor -> its folder."""
-    return {
-        name: folder / EXECUTOR_DIR
-        for name, folder in _shipped().items()
-        if (folder / EXECUTOR_DIR / "config.json").is_file()
-    }
+    return _shipped_beside(EXECUTOR_DIR)
 
 
 def resolve_executor(name_or_path: str | Path) -> str:
@@ -81,11 +82,7 @@ def weights_digest(checkpoint: str | Path) -> str:
 
 def shipped_scorers() -> dict[str, Path]:
     """Shipped names that come with a goal scorer -> its folder."""
-    return {
-        name: folder / SCORER_DIR
-        for name, folder in _shipped().items()
-        if (folder / SCORER_DIR / "config.json").is_file()
-    }
+    return _shipped_beside(SCORER_DIR)
 
 
 def resolve_scorer(name_or_path: str | Path) -> str:
