@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lerobot_taxdpd.maths.geometry import estimate_rigid_transform, transform_points
+from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.maths.metrics import score_against_valid_goals
 
 COLLECTION_FILE = "collection.json"
@@ -38,15 +38,10 @@ def shard_paths(folder: Path) -> list[Path]:
 def label_samples(trial, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Execute every sample of one trial (RANSAC-SVD pose, then the task's controller and success check, as the
     harness executes its chosen one): success (K,) and RMSE (K,) to the nearest valid goal."""
-    from lerobot_taxdpd.sim.trials import execute
+    from lerobot_taxdpd.sim.harness import execute_sample
 
     object_points = trial.object_points.astype(np.float64)
-    success = np.zeros(len(samples), dtype=bool)
-    for k, sample in enumerate(samples):
-        transform, _ = estimate_rigid_transform(
-            object_points, sample, generator=torch.Generator().manual_seed(trial.seed)
-        )
-        success[k] = execute(trial, transform).success
+    success = np.array([execute_sample(trial, sample)[1].success for sample in samples], dtype=bool)
     goals = np.concatenate([transform_points(t, object_points) for t in trial.valid_transforms()])
     return success, score_against_valid_goals(samples, goals).nearest_rmse.astype(np.float32)
 

@@ -81,6 +81,8 @@ def train_scorer(
     scorer = GoalScorer(config)
     optimizer = torch.optim.AdamW(scorer.parameters(), lr=learning_rate, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * step / steps)))
+    # only the candidate points the scorer looks at are turned in every step
+    data["samples"] = data["samples"][:, :, : config.num_goal_points]
     tensors = {name: torch.from_numpy(data[name]) for name in ("scene", "samples", "success")}
     train_rows = np.arange(scenes - held)
     started, losses = time.perf_counter(), []

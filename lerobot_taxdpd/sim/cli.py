@@ -287,7 +287,7 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline, summary_line
 
     output = args.output or OUTPUT[CLOTH_TASK]
-    selection, scorer_path = _scorer_selection(args, args.goal_policy_path)
+    selection, scorer_path, _ = _scorer_selection(args, args.goal_policy_path)  # workers load it by its path
     summary = evaluate(
         split=args.split,
         seed=args.seed,
@@ -333,26 +333,27 @@ def _warn_if_trained_for_another_task(predictor, source: str, task: str) -> None
         )
 
 
-def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None) -> tuple[str | None, str | None]:
-    """The selection rule and the scorer folder it needs: `--scorer.path` implies `scorer`; `--goal-selection
-    scorer` alone takes the scorer shipped with the goal predictor's name. Checked before any trial runs."""
+def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
+    """The selection rule, and the scorer's folder and the scorer loaded from it (None, None without one):
+    `--scorer.path` implies `scorer`; `--goal-selection scorer` alone takes the scorer shipped with the goal
+    predictor's name. Checked before any trial runs."""
     from lerobot_taxdpd.goal_predictors import load_scorer, resolve_scorer
 
     selection = args.goal_selection or ("scorer" if args.scorer_path else None)
     if selection != "scorer":
         if args.scorer_path:
             raise ValueError(f"--scorer.path: only used with --goal-selection scorer, not {selection}")
-        return selection, None
+        return selection, None, None
     source = args.scorer_path or goal_policy_path
     if source is None:
         raise ValueError("--goal-selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
     try:
         folder = resolve_scorer(source)
-        load_scorer(folder)
+        scorer = load_scorer(folder)
     except (OSError, ValueError) as error:
         raise ValueError(f"--scorer.path {source}: {error}") from error
     _warn_if_scorer_learnt_another_predictor(folder, goal_policy_path)
-    return selection, folder
+    return selection, folder, scorer
 
 
 def _warn_if_scorer_learnt_another_predictor(scorer_folder: str, goal_policy_path: str | None) -> None:
@@ -421,12 +422,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:
         predictor = load_predictor(args.predictor)
     output = args.output or OUTPUT["rigid"]
-    selection, scorer_path = _scorer_selection(args, goal_policy_path)
-    scorer = None
-    if scorer_path is not None:
-        from lerobot_taxdpd.goal_predictors import load_scorer
-
-        scorer = load_scorer(scorer_path)
+    selection, _, scorer = _scorer_selection(args, goal_policy_path)
     report = evaluate(
         predictor,
         trials,

@@ -114,6 +114,15 @@ class TrialRun:
     predict_seconds: float
 
 
+def execute_sample(trial: Trial, sample: np.ndarray) -> tuple[np.ndarray, Outcome]:
+    """Fit a pose to one sampled goal cloud by RANSAC-SVD (seeded by the trial) and execute it: the pose and
+    what executing it did."""
+    transform, _ = estimate_rigid_transform(
+        trial.object_points.astype(np.float64), sample, generator=torch.Generator().manual_seed(trial.seed)
+    )
+    return transform, execute(trial, transform)
+
+
 def run_trial(
     predictor: GoalPredictor, trial: Trial, num_samples: int, goal_selection: str = "first", scorer=None
 ) -> TrialRun:
@@ -126,10 +135,7 @@ def run_trial(
         scores = scorer.score(torch.from_numpy(samples), torch.from_numpy(trial.scene_points)).numpy()
     predict_seconds = time.perf_counter() - tick
     samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold, scores)
-    transform, _ = estimate_rigid_transform(
-        trial.object_points.astype(np.float64), samples[0], generator=torch.Generator().manual_seed(trial.seed)
-    )
-    outcome = execute(trial, transform)
+    transform, outcome = execute_sample(trial, samples[0])
     record = {
         "seed": trial.seed,
         "success": outcome.success,
