@@ -33,14 +33,13 @@ RECIPE = [
     "--policy.optimizer_lr=2e-3",
     "--policy.scheduler_warmup_steps=20",
     "--policy.start_tilt_range=15",  # grasp-sized tilts; the clean-sample target and full-yaw starts are defaults
-    "--policy.frame_noise_std=0.3",  # the CPU recipe's: 7.3 deg at 1500 steps against 9.9 with the default 1.0
     "--batch_size=16",
 ]
 # Bounds, per budget. Copying the start orientation is ~40 deg off (median over held-out scenes, against the
 # nearer of the two slots) and any fixed orientation 90 deg: both are printed beside the result. Measured on
-# this project's 2-core machine (docs/taxdpd.md, "The learning test's budget").
+# this project's 2-core machine: 10.2 deg after the CI run's 2000 steps, 4.1 deg after the slow run's 5000.
 BUDGETS = {
-    "ci": dict(steps=1500, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6, max_turn_error_deg=5.0),
+    "ci": dict(steps=2000, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6, max_turn_error_deg=5.0),
     "slow": dict(steps=5000, max_rotation_deg=5.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0),
 }
 
