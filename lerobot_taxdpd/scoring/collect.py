@@ -140,10 +140,11 @@ def _cloth_scene(goal_policy: str, executor: str, num_samples: int, seed: int) -
         env.reset(options={"scene": scene})
         cloth, hangers = env.cloth_points(), env.hanger_points
         samples = sample_goals(goal_policy, cloth, hangers, num_samples, seed)
+        policy = cached_executor(executor, "cpu")
         success = []
         for sample in samples:
             torch.manual_seed(seed)  # as the evaluation seeds its executor's rollout
-            success.append(rollout(env, scene, policy_controller(*cached_executor(executor, "cpu"), sample)).success)
+            success.append(rollout(env, scene, policy_controller(*policy, sample)).success)
     finally:
         env.close()
     return _row(seed, hangers, cloth, samples, success, np.full(num_samples, np.nan))
