@@ -85,11 +85,13 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path, caps
     out = tmp_path / "eval"
     argv = ["eval", "--task", "cloth_hang", "--trials", "2", "--seed", "8", "--workers", "2", "--figures", "1"]
     argv += ["--policy.path", str(gc_dp3), "--goal-policy.path", str(taxdpd), "--ground-truth-goals"]
+    argv += ["--compare-selections", "first"]
     assert main([*argv, "--num-samples", "3", "--output", str(out), "--ship", str(tmp_path / "shipped")]) == 0
     summary = json.loads((out / "cloth_hang_eval.json").read_text())
     printed = capsys.readouterr().out.splitlines()  # one summary line, as the rigid tasks print, not the JSON
     lines = [line for line in printed if line.startswith("cloth_hang: ")]
     assert len(lines) == 1 and lines[0].startswith("cloth_hang: success with predicted goals ")
+    assert "with predicted goals chosen by first " in lines[0]
     assert "with ground-truth goals" in lines[0] and lines[0].endswith(f"report: {out / 'cloth_hang_eval.json'}")
     assert not [line for line in printed if line.lstrip().startswith(("{", "}", '"'))]
     assert summary["trials"] == 2 and summary["workers"] == 2 and summary["config"]["split"] == "test"
@@ -108,6 +110,17 @@ def test_eval_reports_success_goal_metrics_and_plots(checkpoints, tmp_path, caps
     assert summary["config"]["goal_selection"] == "consensus"  # cloth's default: measured better than the first
     valid = [t["sample_goal_rmse"][t["executed_sample"]] < 0.5 for t in trials]
     assert summary["executed_goal_valid"] == np.mean(valid)
+    # The first sample, executed on the same samples beside the consensus one; a sample both rules choose is
+    # hung once and counted for both.
+    first = summary["compared_selections"]["first"]
+    assert first["trials"] == 2 and sum(first["paired"].values()) == 2 and set(first["paired"]) == {
+        "both", "only_consensus", "only_first", "neither"
+    }
+    for trial in trials:
+        compared = trial["compared_selections"]["first"]
+        assert compared["executed_sample"] == 0
+        if trial["executed_sample"] == 0:
+            assert compared["predicted_goal"] == trial["predicted_goal"]
     metrics = summary["goal_metrics"]
     assert 0.0 < metrics["precision_rmse"] and 0.0 < metrics["coverage_rmse"]
     assert 0.0 <= metrics["coverage"] <= 1.0 and 0.0 <= metrics["precision"] <= 1.0
@@ -152,6 +165,8 @@ def test_eval_explains_what_is_missing(checkpoints, tmp_path, capsys):
         ([*base, "--policy.path", str(tmp_path / "nowhere"), "--ground-truth-goals"], "--policy.path: "),
         ([*base[:-4], "--trials", "0", "--policy.path", str(gc_dp3), "--ground-truth-goals"], "trials"),
         ([*base, "--predictor", "oracle"], "--predictor: only applies to a rigid task"),
+        ([*base, "--goal-policy.path", "cloth_hang", "--compare-selections", "first"], "compared selections are "
+         "executed: give --goal-policy.path and --policy.path"),
     ]:
         assert main(argv) == 1
         assert message in capsys.readouterr().err

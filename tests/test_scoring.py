@@ -58,7 +58,8 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
 
     # Shipped beside its predictor, with a paired evaluation and the commands that remake it; not beside another.
     evaluation = evaluate_choice("mug_easyrack", "mug_easyrack", str(tmp_path / "scorer"), range(1), num_samples=3)
-    assert sum(evaluation["paired"].values()) == 1 and evaluation["first_sample"]["trials"] == 1
+    assert sum(evaluation["paired"].values()) == 1 and evaluation["baseline"]["trials"] == 1
+    assert evaluation["baseline_rule"] == "first"
     shipped = ship_scorer(tmp_path / "scorer", "mug_easyrack", evaluation, tmp_path / "pretrained")
     assert shipped == tmp_path / "pretrained" / "mug_easyrack" / "scorer"
     assert load_scorer(shipped).config == load_scorer(tmp_path / "scorer").config
@@ -134,9 +135,22 @@ def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path):
     folder = tmp_path / "cloth"
     collect("cloth_hang", "cloth_hang", range(5000, 5001), folder, num_samples=2, shard_size=1)
     details, data = load_collection(folder)
-    assert details["executor"].endswith("executor") and details["executor_weights"] != "unknown"
+    assert details["executor"] == "cloth_hang" and details["executor_weights"] != "unknown"
     assert data["samples"].shape[:2] == (1, 2) and data["success"].shape == (1, 2)
     assert np.isnan(data["rmse"]).all(), "no valid goals were computed, so no RMSE is claimed"
+    # Its scorer measured on a held-out scene against the consensus sample (cloth's default) and the first, in
+    # one pass, and shipped with the three rules in its card.
+    config = GoalScorerConfig(num_goal_points=64, hidden_dims=(16,), feature_dim=16)
+    train_scorer(folder, tmp_path / "scorer", steps=2, config=config)
+    evaluation = evaluate_choice("cloth_hang", "cloth_hang", str(tmp_path / "scorer"), range(1), num_samples=2)
+    assert evaluation["baseline_rule"] == "consensus" and sum(evaluation["paired"].values()) == 1
+    assert {"scorer", "consensus", "first", "best_of_k"} == set(evaluation["executed_goal_valid"])
+    report = json.loads(Path(evaluation["report"]).read_text())
+    assert report["config"]["goal_selection"] == "scorer" and report["config"]["policy_path"].endswith("executor")
+    shipped = ship_scorer(tmp_path / "scorer", "cloth_hang", evaluation, tmp_path / "pretrained")
+    card = (shipped / "README.md").read_text()
+    assert "| consensus (the sample the others agree with) |" in card and "executed goal valid" in card
+    assert "--goal-policy.path cloth_hang --policy.path cloth_hang --goal-selection scorer" in card
     with pytest.raises(ValueError, match="only cloth_hang executes its goals with a policy"):
         collect("mug_easyrack", "mug_easyrack", range(1), tmp_path / "rigid", executor="cloth_hang")
 

@@ -34,6 +34,9 @@ METRICS_FILE = "metrics.json"
 #: a time series, so the value only matters to LeRobot's timestamp checks.
 GOAL_DATASET_FPS = 10
 
+#: The one deformable task: its goals are hung by a gc_dp3 executor rather than placed by a pose.
+CLOTH_TASK = "cloth_hang"
+
 #: (N_O, N_S) per task, from the paper's downsampling table; procedural tasks inherit their real analogue's.
 DEFAULT_POINT_COUNTS: dict[str, tuple[int, int]] = {
     "mug_rack_easy_single": (512, 512),

@@ -127,6 +127,20 @@ def success_summary(successes: int, trials: int) -> dict[str, float]:
     return {"success_rate": successes / max(trials, 1), "ci95_low": low, "ci95_high": high, "trials": trials}
 
 
+def paired_outcomes(a, b, names: tuple[str, str] = ("a", "b")) -> dict[str, int]:
+    """Counts of the same trials run two ways (success lists `a` and `b`): both, only the one named
+    `names[0]`, only the other, neither. The two middle counts are what a difference between the rules rests on."""
+    a, b = _np(a).astype(bool), _np(b).astype(bool)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"paired_outcomes: needs two 1-D outcome lists of one length, got {a.shape} and {b.shape}")
+    return {
+        "both": int((a & b).sum()),
+        f"only_{names[0]}": int((a & ~b).sum()),
+        f"only_{names[1]}": int((~a & b).sum()),
+        "neither": int((~a & ~b).sum()),
+    }
+
+
 def paired_difference(a, b, resamples: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
     """Mean of `a - b` over paired trials (the same scenes scored twice) with a 95% bootstrap interval.
 

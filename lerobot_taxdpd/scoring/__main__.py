@@ -9,6 +9,9 @@ it to choose which sample to execute (`sim eval --goal-selection scorer`).
     python -m lerobot_taxdpd.scoring ship --scorer outputs/scorer/book_shelf --task book_shelf \\
         --goal-policy.path book_shelf --ship lerobot_taxdpd/pretrained   # seeds 0-99, first vs scorer, paired
 
+cloth_hang collects the same way (each sample hung by the gc_dp3 executor shipped beside the goal predictor, or
+`--executor`); `ship` then measures the scorer against the consensus sample (cloth's default) and the first.
+
 The scorer is a plain module with this CLI, not a third LeRobot policy: it acts on nothing (no observation to
 action), its examples are (scene, candidate goal, outcome) triples made from a predictor's samples rather than
 recorded episodes, and it trains in minutes; it saves, loads and pushes through huggingface_hub like the
@@ -64,6 +67,13 @@ def build_parser() -> argparse.ArgumentParser:
     ship.add_argument("--trials", type=int, default=100, help="held-out trials, seeds 0..N-1 (default: 100)")
     ship.add_argument("--num-samples", type=int, default=10)
     ship.add_argument("--ship", type=Path, default=None, help="save it as <SHIP>/<task>/scorer (default: measure only)")
+    ship.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="cloth_hang only: parallel simulation processes (default: 1); its per-trial report is written in "
+        "<SCORER>/evaluation",
+    )
     add_threads_argument(ship)
     return parser
 
@@ -92,7 +102,12 @@ def main(argv: list[str] | None = None) -> int:
             from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 
             evaluation = evaluate_choice(
-                args.task, args.goal_policy_path, str(args.scorer), range(args.trials), args.num_samples
+                args.task,
+                args.goal_policy_path,
+                str(args.scorer),
+                range(args.trials),
+                args.num_samples,
+                workers=args.workers,
             )
             print(json.dumps(evaluation, indent=2))
             if args.ship is not None:

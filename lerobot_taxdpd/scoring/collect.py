@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.maths.metrics import score_against_valid_goals
 
@@ -74,10 +75,11 @@ def collect(
         "goal_policy_weights": weights_digest(source),
         "num_samples": num_samples,
     }
-    if task_name == "cloth_hang":
-        executor = resolve_executor(executor or goal_policy)
-        details |= {"executor": str(executor), "executor_weights": weights_digest(executor)}
-        label_scene = functools.partial(_cloth_scene, source, executor, num_samples)
+    if task_name == CLOTH_TASK:
+        executor = str(executor or goal_policy)  # recorded as given, as the goal predictor is: no machine's folders
+        resolved = resolve_executor(executor)
+        details |= {"executor": executor, "executor_weights": weights_digest(resolved)}
+        label_scene = functools.partial(_cloth_scene, source, resolved, num_samples)
     else:
         if executor is not None:
             raise ValueError(f"executor: only cloth_hang executes its goals with a policy, not {task_name}")

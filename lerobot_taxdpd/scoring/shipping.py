@@ -13,14 +13,30 @@ import shlex
 import shutil
 from pathlib import Path
 
-from lerobot_taxdpd.data.schema import METRICS_FILE
+import numpy as np
+
+from lerobot_taxdpd.data.schema import CLOTH_TASK, METRICS_FILE
 from lerobot_taxdpd.goal_predictors import weights_digest
+from lerobot_taxdpd.maths.metrics import paired_outcomes
 
 SCORER_FILES = ("config.json", "model.safetensors")
 
 
-def evaluate_choice(task_name: str, goal_policy: str, scorer_path: str, seeds: range, num_samples: int = 10) -> dict:
-    """Success of the first sample and of the scorer's choice on the same held-out trials, with paired counts."""
+def evaluate_choice(
+    task_name: str,
+    goal_policy: str,
+    scorer_path: str,
+    seeds: range,
+    num_samples: int = 10,
+    *,
+    workers: int = 1,
+    reports: Path | None = None,
+) -> dict:
+    """Success of the task's baseline rule (the first sample; cloth_hang: the consensus one, its default) and of
+    the scorer's choice on the same held-out trials, with paired counts. cloth_hang also executes the first
+    sample, runs `workers` processes and writes its per-trial report in `reports` (default: `<scorer>/evaluation`)."""
+    if task_name == CLOTH_TASK:
+        return _evaluate_cloth_choice(goal_policy, scorer_path, seeds, num_samples, workers, reports)
     from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer
     from lerobot_taxdpd.sim.harness import evaluate
     from lerobot_taxdpd.sim.tasks import get_task
@@ -31,24 +47,69 @@ def evaluate_choice(task_name: str, goal_policy: str, scorer_path: str, seeds: r
     trials = [make_trial(task, seed, "test") for seed in seeds]
     first = evaluate(predictor, trials, num_samples, goal_selection="first")
     chosen = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=scorer)
-    a = [t["success"] for t in chosen["per_trial"]]
-    b = [t["success"] for t in first["per_trial"]]
     return {
         "task": task.name,
         "trials": f"{len(trials)} held-out trials (test geometry, seeds {seeds.start}..{seeds.stop - 1}), "
         f"K = {num_samples}",
-        "first_sample": first["success"],
+        "baseline_rule": "first",
+        "baseline": first["success"],
         "scorer": chosen["success"],
-        "paired": {
-            "both": sum(x and y for x, y in zip(a, b, strict=True)),
-            "only_scorer": sum(x and not y for x, y in zip(a, b, strict=True)),
-            "only_first": sum(y and not x for x, y in zip(a, b, strict=True)),
-            "neither": sum(not (x or y) for x, y in zip(a, b, strict=True)),
-        },
+        "paired": _paired(chosen["per_trial"], first["per_trial"]),
         "scorer_translation_error_mm": chosen["translation_error_mm"]["median"],
         "scorer_rotation_error_deg": chosen["rotation_error_deg"]["median"],
-        "first_translation_error_mm": first["translation_error_mm"]["median"],
-        "first_rotation_error_deg": first["rotation_error_deg"]["median"],
+        "baseline_translation_error_mm": first["translation_error_mm"]["median"],
+        "baseline_rotation_error_deg": first["rotation_error_deg"]["median"],
+    }
+
+
+def _paired(chosen: list[dict], baseline: list[dict]) -> dict[str, int]:
+    return paired_outcomes([t["success"] for t in chosen], [t["success"] for t in baseline], ("scorer", "baseline"))
+
+
+def _evaluate_cloth_choice(
+    goal_policy: str, scorer_path: str, seeds: range, num_samples: int, workers: int, reports: Path | None
+) -> dict:
+    """cloth_hang: one pass over the scenes executes the scorer's choice, the consensus sample and the first, each
+    hung by the executor whose outcomes the scorer learnt."""
+    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate
+
+    executor = json.loads((Path(scorer_path) / METRICS_FILE).read_text())["collection"]["executor"]
+    reports = Path(reports) if reports is not None else Path(scorer_path) / "evaluation"
+    summary = evaluate(
+        split="test",
+        seed=seeds.start,
+        trials=len(seeds),
+        output=reports,
+        policy_path=executor,
+        goal_policy_path=goal_policy,
+        num_goal_samples=num_samples,
+        goal_selection="scorer",
+        compared_selections=("consensus", "first"),
+        scorer_path=scorer_path,
+        figures=0,
+        workers=workers,
+    )
+    runs = [t for t in summary["per_trial"] if "predicted_goal" in t]
+    consensus = [t["compared_selections"]["consensus"]["predicted_goal"] for t in runs]
+    compared = summary["compared_selections"]
+    rate = ("success_rate", "ci95_low", "ci95_high", "trials")
+    threshold = summary["config"]["goal_threshold_m"]
+    return {
+        "task": CLOTH_TASK,
+        "trials": f"{len(seeds)} held-out scenes (test geometry, seeds {seeds.start}..{seeds.stop - 1}), "
+        f"K = {num_samples}, the chosen goal hung by gc_dp3 {executor}",
+        "baseline_rule": "consensus",
+        "baseline": {k: compared["consensus"][k] for k in rate},
+        "scorer": {k: summary["predicted_goal"][k] for k in rate},
+        "paired": _paired([t["predicted_goal"] for t in runs], consensus),
+        "first_sample": {k: compared["first"][k] for k in rate},
+        "executed_goal_valid": {
+            "scorer": summary["executed_goal_valid"],
+            "consensus": compared["consensus"]["executed_goal_valid"],
+            "first": compared["first"]["executed_goal_valid"],
+            "best_of_k": float(np.mean([min(t["sample_goal_rmse"]) < threshold for t in runs])),
+        },
+        "report": str(reports / EVAL_FILE),
     }
 
 
@@ -60,6 +121,8 @@ def commands(metrics: dict, task: str) -> list[str]:
     collect = ["python", "-m", "lerobot_taxdpd.scoring", "collect", "--task", task, "--goal-policy.path",
                task, "--seeds", str(first), str(last), "--output", data, "--num-samples",
                str(collection["num_samples"])]  # fmt: skip
+    if collection.get("executor", task) != task:
+        collect += ["--executor", collection["executor"]]
     train = ["python", "-m", "lerobot_taxdpd.scoring", "train", "--collection", data, "--output",
              f"outputs/scorer/{task}", "--steps", str(metrics["steps"]), "--batch-scenes",
              str(metrics["batch_scenes"]), "--seed", str(metrics["seed"])]  # fmt: skip
@@ -94,12 +157,41 @@ def _rate(summary: dict) -> str:
     return f"{summary['success_rate']:.0%} ({summary['ci95_low']:.0%}-{summary['ci95_high']:.0%})"
 
 
+_RULE_LABELS = {
+    "first": "first (the paper's one shot)",
+    "consensus": "consensus (the sample the others agree with)",
+    "scorer": "the scorer's choice",
+}
+
+
+def _result_rows(e: dict) -> tuple[str, list[str]]:
+    """The card's results table: one row per rule measured (rigid: first and scorer, with their pose errors;
+    cloth: first, consensus and scorer, with how often the executed goal was a valid one)."""
+    if e["task"] == CLOTH_TASK:
+        rates = {"first": e["first_sample"], "consensus": e["baseline"], "scorer": e["scorer"]}
+        valid = e["executed_goal_valid"]
+        rows = [f"| {_RULE_LABELS[r]} | {_rate(rate)} | {valid[r]:.0%} |" for r, rate in rates.items()]
+        return "| executed sample | success | executed goal valid |\n|---|---|---|", rows
+    rows = []
+    for rule, key in ((e["baseline_rule"], "baseline"), ("scorer", "scorer")):
+        errors = f"{e[f'{key}_translation_error_mm']:.1f} mm / {e[f'{key}_rotation_error_deg']:.1f} deg"
+        rows.append(f"| {_RULE_LABELS[rule]} | {_rate(e[key])} | {errors} |")
+    return "| executed sample | success | translation / rotation (median) |\n|---|---|---|", rows
+
+
 def card(metrics: dict) -> str:
     """The scorer's model card: what it chooses among, what it was trained on, and what choosing by it measured."""
     e, held, p = metrics["evaluation"], metrics["held_back_scenes"], metrics["evaluation"]["paired"]
     collect, train = metrics["commands"]
-    first_errors = f"{e['first_translation_error_mm']:.1f} mm / {e['first_rotation_error_deg']:.1f} deg"
-    scorer_errors = f"{e['scorer_translation_error_mm']:.1f} mm / {e['scorer_rotation_error_deg']:.1f} deg"
+    header, rows = _result_rows(e)
+    rows[-1] = rows[-1].replace(f"| {_rate(e['scorer'])} |", f"| **{_rate(e['scorer'])}** |")
+    table = "\n".join([header, *rows])
+    baseline = e["baseline_rule"]
+    best = f" The best of the K was a valid goal in {e['executed_goal_valid']['best_of_k']:.0%} of the scenes." if (
+        "executed_goal_valid" in e
+    ) else ""
+    use = f"python -m lerobot_taxdpd.sim eval --task {e['task']} --goal-policy.path {e['task']}"
+    use += " --policy.path cloth_hang" * (e["task"] == CLOTH_TASK) + " --goal-selection scorer"
     return f"""---
 library_name: lerobot_taxdpd
 tags:
@@ -118,22 +210,19 @@ each executed in simulation, on {metrics['training_scenes']} training-geometry s
 
 ## Results
 
-{e['trials']}, the same samples chosen two ways:
+{e['trials']}, the same samples chosen each way:
 
-| executed sample | success | translation / rotation (median) |
-|---|---|---|
-| first (the paper's one shot) | {_rate(e['first_sample'])} | {first_errors} |
-| the scorer's choice | **{_rate(e['scorer'])}** | {scorer_errors} |
+{table}
 
-Paired: both {p['both']}, only the scorer's {p['only_scorer']}, only the first {p['only_first']}, neither
-{p['neither']}. On {held.get('scenes', 0)} training-geometry scenes held back from its training: the scorer's
-choice {held.get('scorer', 0):.0%}, the first sample {held.get('first_sample', 0):.0%}, the best of the K
-{held.get('any_sample', 0):.0%}.
+Paired against the {baseline} sample: both {p['both']}, only the scorer's {p['only_scorer']}, only the
+{baseline} {p['only_baseline']}, neither {p['neither']}.{best} On {held.get('scenes', 0)} training-geometry
+scenes held back from its training: the scorer's choice {held.get('scorer', 0):.0%}, the first sample
+{held.get('first_sample', 0):.0%}, the best of the K {held.get('any_sample', 0):.0%}.
 
 ## Use
 
 ```bash
-python -m lerobot_taxdpd.sim eval --task {e['task']} --goal-policy.path {e['task']} --goal-selection scorer
+{use}
 ```
 
 ## Training

@@ -20,11 +20,11 @@ import sys
 from pathlib import Path
 
 from lerobot_taxdpd.cli_options import add_deprecated_alias
+from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.selection import GOAL_SELECTIONS
 from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
-CLOTH_TASK = "cloth_hang"
 #: Where eval writes by default, per kind of task.
 OUTPUT = {"rigid": Path("outputs/sim_eval"), CLOTH_TASK: Path("outputs/eval/cloth_hang")}
 RIGID_ONLY = {
@@ -40,6 +40,7 @@ CLOTH_ONLY = {
     "workers": "--workers",
     "action_noise": "--action-noise",
     "ground_truth_goals": "--ground-truth-goals",
+    "compared_selections": "--compare-selections",
     "goal_threshold": "--goal-threshold",
     "ship": "--ship",
 }
@@ -157,6 +158,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cloth.add_argument(
         "--ground-truth-goals", action="store_true", default=None, help="also execute a ground-truth goal"
+    )
+    cloth.add_argument(
+        "--compare-selections",
+        dest="compared_selections",
+        nargs="+",
+        choices=GOAL_SELECTIONS,
+        default=None,
+        metavar="RULE",
+        help="also execute the samples these rules choose (first, consensus, scorer), on the same samples of "
+        "each trial: success beside --goal-selection's, with paired counts (a rule that chooses the same sample "
+        "shares its rollout)",
     )
     cloth.add_argument(
         "--goal-threshold", type=float, default=None, help="RMSE for coverage@K / precision@K (default: 0.5)"
@@ -297,7 +309,12 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
         goal_policy_path=args.goal_policy_path,
         ground_truth_goals=bool(args.ground_truth_goals),
         num_goal_samples=args.num_samples,
-        **_given(goal_threshold=args.goal_threshold, goal_selection=selection, scorer_path=scorer_path),
+        **_given(
+            goal_threshold=args.goal_threshold,
+            goal_selection=selection,
+            compared_selections=args.compared_selections,
+            scorer_path=scorer_path,
+        ),
         figures=args.figures,
         workers=_workers(args),
         device=args.device,
@@ -339,14 +356,15 @@ def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
     predictor's name. Checked before any trial runs."""
     from lerobot_taxdpd.goal_predictors import load_scorer, resolve_scorer
 
-    selection = args.goal_selection or ("scorer" if args.scorer_path else None)
-    if selection != "scorer":
+    compared = args.compared_selections or ()
+    selection = args.goal_selection or ("scorer" if args.scorer_path and "scorer" not in compared else None)
+    if "scorer" not in (selection, *compared):
         if args.scorer_path:
             raise ValueError(f"--scorer.path: only used with --goal-selection scorer, not {selection}")
         return selection, None, None
     source = args.scorer_path or goal_policy_path
     if source is None:
-        raise ValueError("--goal-selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
+        raise ValueError("goal selection scorer: give --scorer.path (the scorer of the goal predictor evaluated)")
     try:
         folder = resolve_scorer(source)
         scorer = load_scorer(folder)

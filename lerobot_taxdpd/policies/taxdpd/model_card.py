@@ -12,10 +12,9 @@ import json
 
 from huggingface_hub import EvalResult, ModelCard
 
-from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.data.schema import CLOTH_TASK, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.policies.model_cards import INSTALL, assemble, card_data, config_table
 
-CLOTH_TASK = "cloth_hang"
 _SWITCHES = (
     "use_gmm",
     "disentangled",

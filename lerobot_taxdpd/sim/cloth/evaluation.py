@@ -28,6 +28,7 @@ from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
 from lerobot_taxdpd.maths.metrics import (
     coverage_precision,
     coverage_precision_from_rmse,
+    paired_outcomes,
     pairwise_rmse,
     success_summary,
 )
@@ -52,6 +53,7 @@ class TrialRequest:
     ground_truth_goals: bool
     num_goal_samples: int
     goal_selection: str
+    compared_selections: tuple[str, ...]
     goal_threshold: float
     scorer_path: str | None
     figure_dir: str | None
@@ -140,11 +142,13 @@ def run_trial(request: TrialRequest) -> dict:
             # valid goal can be read off any report.
             result["sample_goal_rmse"] = rmse.min(1).tolist()
             scores = None
-            if request.goal_selection == "scorer":
+            if request.scorer_path:
                 scores = _scorer(request.scorer_path).score(torch.from_numpy(predicted), torch.from_numpy(hanger_cloud))
                 result["sample_scores"] = scores.tolist()
+                scores = scores.numpy()
+            samples = predicted
             predicted, result["executed_sample"] = executed_first(
-                predicted, request.goal_selection, request.goal_threshold, None if scores is None else scores.numpy()
+                samples, request.goal_selection, request.goal_threshold, scores
             )
             # The trivial baseline beside it: the start cloth, unchanged in shape and orientation, moved to the
             # centroid of the ground-truth goal.
@@ -153,22 +157,35 @@ def run_trial(request: TrialRequest) -> dict:
                 copied[None], valid, request.goal_threshold
             )
             if executor is not None:
-                torch.manual_seed(request.seed)
-                result["predicted_goal"] = _outcome(rollout(env, scene, policy_controller(*executor, predicted[0])))
+                hung: dict[int, dict] = {}  # sample index -> outcome: rules that choose alike share one rollout
+
+                def hang(index: int) -> dict:
+                    if index not in hung:
+                        torch.manual_seed(request.seed)
+                        hung[index] = _outcome(rollout(env, scene, policy_controller(*executor, samples[index])))
+                    return hung[index]
+
+                result["predicted_goal"] = hang(result["executed_sample"])
+                for rule in request.compared_selections:
+                    _, index = executed_first(samples, rule, request.goal_threshold, scores)
+                    result.setdefault("compared_selections", {})[rule] = {
+                        "executed_sample": index,
+                        "predicted_goal": hang(index),
+                    }
         if request.figure_dir:
             path = Path(request.figure_dir) / f"{request.split}_{request.seed:04d}.png"
-            samples = predicted if predicted is not None else np.zeros((0, *start_cloud.shape))
+            shown = predicted if predicted is not None else np.zeros((0, *start_cloud.shape))
             title = f"cloth_hang {request.split} seed {request.seed}: {len(goals)} valid goal{'s' * (len(goals) > 1)}"
             figure = plot_goal_samples(
                 path,
                 hanger_cloud,
                 start_cloud,
-                samples,
+                shown,
                 valid_goals=goals,
                 first_sample_label="executed by gc_dp3" if executor is not None else "",
                 scene_label="hangers",
                 object_label="cloth (start)",
-                title=f"{title}, {len(samples)} predicted",
+                title=f"{title}, {len(shown)} predicted",
             )
             result["figure"] = str(figure)
         result["seconds"] = time.perf_counter() - started
@@ -254,6 +271,20 @@ def summarise(trials: list[dict], config: dict, workers: int) -> dict:
         threshold = config["goal_threshold_m"]
         valid = [t["sample_goal_rmse"][t["executed_sample"]] < threshold for t in selected]
         summary["executed_goal_valid"] = float(np.mean(valid))
+    compared = [t for t in trials if "compared_selections" in t]
+    for rule in config.get("compared_selections", ()):
+        if not compared:
+            break
+        runs = [t["compared_selections"][rule] for t in compared]
+        outcomes = [r["predicted_goal"]["success"] for r in runs]
+        chosen_rmse = [t["sample_goal_rmse"][r["executed_sample"]] for t, r in zip(compared, runs, strict=True)]
+        summary.setdefault("compared_selections", {})[rule] = {
+            **success_summary(sum(outcomes), len(outcomes)),
+            "executed_goal_valid": float(np.mean(np.asarray(chosen_rmse) < config["goal_threshold_m"])),
+            "paired": paired_outcomes(
+                [t["predicted_goal"]["success"] for t in compared], outcomes, (config["goal_selection"], rule)
+            ),
+        }
     summary["per_trial"] = trials
     return summary
 
@@ -269,6 +300,7 @@ def evaluate(
     ground_truth_goals: bool = False,
     num_goal_samples: int = 10,
     goal_selection: str = "consensus",
+    compared_selections: tuple[str, ...] = (),
     goal_threshold: float = 0.5,
     scorer_path: str | None = None,
     figures: int = 3,
@@ -278,7 +310,9 @@ def evaluate(
 ) -> dict:
     """Run `trials` scenes (seeds seed..seed+trials-1), write `<output>/cloth_hang_eval.json`, return it.
 
-    Each trial runs with torch's current thread count (in every worker process, when `workers` > 1).
+    `compared_selections` are other rules executed on the very same samples of each trial, reported beside
+    `goal_selection` with paired counts (`compared_selections` in the report). Each trial runs with torch's
+    current thread count (in every worker process, when `workers` > 1).
     """
     if trials < 1:
         raise ValueError(f"trials: must be at least 1, got {trials}")
@@ -287,8 +321,11 @@ def evaluate(
             "nothing to evaluate: give --goal-policy.path (goal metrics; with --policy.path also success with "
             "predicted goals) and/or --policy.path with --ground-truth-goals"
         )
-    check_goal_selection(goal_selection)
-    if (goal_selection == "scorer") != (scorer_path is not None):
+    for rule in (goal_selection, *compared_selections):
+        check_goal_selection(rule)
+    if compared_selections and not (policy_path and goal_policy_path):
+        raise ValueError("compared selections are executed: give --goal-policy.path and --policy.path")
+    if ("scorer" in (goal_selection, *compared_selections)) != (scorer_path is not None):
         raise ValueError("goal selection 'scorer' and a scorer path go together: give both or neither")
     from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor, resolve_scorer
 
@@ -304,6 +341,7 @@ def evaluate(
         "goal_policy_path": goal_policy_path,
         "num_goal_samples": num_goal_samples,
         "goal_selection": goal_selection,
+        "compared_selections": list(compared_selections),
         "scorer_path": scorer_path,
         "goal_threshold_m": goal_threshold,
         "device": device,
@@ -318,6 +356,7 @@ def evaluate(
             ground_truth_goals=ground_truth_goals,
             num_goal_samples=num_goal_samples,
             goal_selection=goal_selection,
+            compared_selections=tuple(compared_selections),
             goal_threshold=goal_threshold,
             scorer_path=scorer_path,
             figure_dir=str(output / "figures") if i < figures else None,
@@ -345,6 +384,9 @@ def summary_line(summary: dict, report: Path) -> str:
         if name in summary:
             s = summary[name]
             parts.append(f"{label} {s['success_rate']:.1%} (95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%})")
+    for rule, s in summary.get("compared_selections", {}).items():
+        interval = f"(95% CI {s['ci95_low']:.1%}-{s['ci95_high']:.1%})"
+        parts.append(f"predicted goals chosen by {rule} {s['success_rate']:.1%} {interval}")
     text = f"cloth_hang: success with {', with '.join(parts)} over {summary['trials']} trials" if parts else ""
     if "goal_metrics" in summary:
         m, k = summary["goal_metrics"], summary["config"]["num_goal_samples"]
