@@ -89,15 +89,26 @@ def _evaluate_cloth_choice(
         figures=0,
         workers=workers,
     )
+    return cloth_choice(summary) | {"report": str(reports / EVAL_FILE)}
+
+
+def cloth_choice(summary: dict) -> dict:
+    """A cloth evaluation report (`sim eval --task cloth_hang`, the scorer's choice executed, the consensus and
+    first samples compared on the same samples) as a scorer's evaluation: rates, paired counts, valid shares."""
+    config, compared = summary["config"], summary.get("compared_selections", {})
+    if config["goal_selection"] != "scorer" or not {"consensus", "first"} <= set(compared):
+        raise ValueError(
+            "a cloth scorer is measured by executing its choice with the consensus and first samples compared "
+            "(--goal-selection scorer --compare-selections consensus first)"
+        )
     runs = [t for t in summary["per_trial"] if "predicted_goal" in t]
     consensus = [t["compared_selections"]["consensus"]["predicted_goal"] for t in runs]
-    compared = summary["compared_selections"]
     rate = ("success_rate", "ci95_low", "ci95_high", "trials")
-    threshold = summary["config"]["goal_threshold_m"]
+    threshold = config["goal_threshold_m"]
     return {
         "task": CLOTH_TASK,
-        "trials": f"{len(seeds)} held-out scenes (test geometry, seeds {seeds.start}..{seeds.stop - 1}), "
-        f"K = {num_samples}, the chosen goal hung by gc_dp3 {executor}",
+        "trials": f"{summary['trials']} held-out scenes ({config['split']} geometry, seeds {config['seeds']}), "
+        f"K = {config['num_goal_samples']}, the chosen goal hung by gc_dp3",
         "baseline_rule": "consensus",
         "baseline": {k: compared["consensus"][k] for k in rate},
         "scorer": {k: summary["predicted_goal"][k] for k in rate},
@@ -109,7 +120,6 @@ def _evaluate_cloth_choice(
             "first": compared["first"]["executed_goal_valid"],
             "best_of_k": float(np.mean([min(t["sample_goal_rmse"]) < threshold for t in runs])),
         },
-        "report": str(reports / EVAL_FILE),
     }
 
 
@@ -145,8 +155,9 @@ def ship_scorer(scorer_dir: Path, goal_policy: str, evaluation: dict, destinatio
         )
     target = Path(destination) / task / "scorer"
     target.mkdir(parents=True, exist_ok=True)
-    for name in SCORER_FILES:
-        shutil.copyfile(scorer_dir / name, target / name)
+    if target.resolve() != scorer_dir.resolve():  # a shipped scorer re-measured stays where it is
+        for name in SCORER_FILES:
+            shutil.copyfile(scorer_dir / name, target / name)
     metrics = {**metrics, "evaluation": evaluation, "commands": commands(metrics, task)}
     (target / METRICS_FILE).write_text(json.dumps(metrics, indent=2))
     (target / "README.md").write_text(card(metrics))

@@ -300,6 +300,12 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
 
     output = args.output or OUTPUT[CLOTH_TASK]
     selection, scorer_path, _ = _scorer_selection(args, args.goal_policy_path)  # workers load it by its path
+    compared = set(args.compared_selections or ())
+    if args.ship is not None and selection == "scorer" and not {"consensus", "first"} <= compared:
+        raise ValueError(
+            "--ship with a scorer ships the scorer too, measured against the other rules: add "
+            "--compare-selections consensus first"
+        )
     summary = evaluate(
         split=args.split,
         seed=args.seed,

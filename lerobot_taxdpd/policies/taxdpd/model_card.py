@@ -179,6 +179,10 @@ def _limitations(config, metrics: dict) -> list[str]:
             f"- Measured in simulation only, on held-out geometry (see Training and evaluation): success "
             f"{_rate(metrics['success'])}, {executed}."
         )
+        by_rule = metrics.get("success_by_selection")
+        if by_rule:
+            chosen = ", ".join(f"{rule} {_rate(rate)}" for rule, rate in by_rule.items())
+            lines.append(f"  The same samples, chosen by another rule and executed alike: {chosen}.")
         if "success_with_ground_truth_goals" in metrics:
             lines.append(
                 f"  With ground-truth goals the same executor reaches "

@@ -426,7 +426,9 @@ def _resolved(flag: str, name_or_path: str | None, resolve: Callable[[str], str]
 def ship_pipeline(summary: dict, destination: Path) -> Path:
     """Save the evaluated goal predictor as the shipped `cloth_hang` and its gc_dp3 executor as
     `cloth_hang/executor`, each with this evaluation as its metrics (success with the predicted goal and, when
-    measured, with ground-truth goals; coverage and precision RMSE for the goal predictor)."""
+    measured, with ground-truth goals and by the compared selection rules; coverage and precision RMSE for the
+    goal predictor). A scorer that chose the goals ships as `cloth_hang/scorer`, measured against the consensus
+    and first samples of the same run."""
     from lerobot_taxdpd.goal_predictors import EXECUTOR_DIR, SHIPPED_DIR, load_goal_predictor
     from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
     from lerobot_taxdpd.sim.pretrain import save_shipped
@@ -434,11 +436,7 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     config = summary["config"]
     if not (config["goal_policy_path"] and config["policy_path"]) or "predicted_goal" not in summary:
         raise ValueError("--ship: needs --goal-policy.path and --policy.path (success with the predicted goal)")
-    rates = {
-        name: {k: summary[name][k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
-        for name in ("predicted_goal", "ground_truth_goal")
-        if name in summary
-    }
+    rates = {name: _rate_fields(summary[name]) for name in ("predicted_goal", "ground_truth_goal") if name in summary}
     evaluated = {
         "task": "cloth_hang",
         "description": TASK_DESCRIPTION,
@@ -449,6 +447,11 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
         "license": "apache-2.0",
         "success": rates["predicted_goal"],
         **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
+        **(
+            {"success_by_selection": {rule: _rate_fields(s) for rule, s in summary["compared_selections"].items()}}
+            if summary.get("compared_selections")
+            else {}
+        ),
         "seconds_per_trial": summary["median_seconds_per_trial"],
     }
     shipped = Path(destination) / "cloth_hang"
@@ -471,7 +474,15 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     executor = GcDp3Policy.from_pretrained(executor_checkpoint)  # save_shipped keeps its average alone
     executor.metrics = {**_training(executor_checkpoint), **evaluated}
     save_shipped(executor, executor_checkpoint, shipped / EXECUTOR_DIR)
+    if config["goal_selection"] == "scorer":
+        from lerobot_taxdpd.scoring.shipping import cloth_choice, ship_scorer
+
+        ship_scorer(Path(config["scorer_path"]), str(shipped), cloth_choice(summary), destination)
     return shipped
+
+
+def _rate_fields(summary: dict) -> dict:
+    return {k: summary[k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
 
 
 def _source(path: str, shipped_dir: Path) -> str:
