@@ -43,6 +43,13 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
     assert data["success"].dtype == bool and data["success"].shape == (2, 3)
     # Success is the executed outcome, not the distance: a sample far from every valid goal never succeeds.
     assert not data["success"][data["rmse"] > 0.05].any()
+    # Shards labelled by two processes hold what one process labels: each scene's samples and outcomes come
+    # from its seed alone.
+    parallel = collect("mug_easyrack", "mug_easyrack", range(5000, 5002), tmp_path / "parallel", num_samples=3,
+                       shard_size=1, workers=2, progress=False)  # fmt: skip
+    assert [p.name for p in parallel] == [p.name for p in both]
+    for name, values in load_collection(tmp_path / "parallel")[1].items():
+        np.testing.assert_array_equal(values, data[name], err_msg=name)
     with pytest.raises(ValueError, match="num_samples 3, not 4"):
         collect("mug_easyrack", "mug_easyrack", range(5002, 5003), folder, num_samples=4, shard_size=1)
     assert json.loads((folder / COLLECTION_FILE).read_text())["num_samples"] == 3

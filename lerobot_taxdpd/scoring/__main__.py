@@ -48,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--num-samples", type=int, default=10, help="samples per scene, K (default: 10)")
     collect.add_argument("--shard-size", type=int, default=50, help="scenes per shard file (default: 50)")
     collect.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="processes labelling shards side by side, one torch thread each (default: 1); one per core",
+    )
+    collect.add_argument(
         "--executor",
         metavar="NAME_OR_PATH",
         help="cloth_hang only: the gc_dp3 policy that hangs each sampled goal (default: the goal predictor's name)",
@@ -96,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
                 num_samples=args.num_samples,
                 shard_size=args.shard_size,
                 executor=args.executor,
+                workers=args.workers,
             )
             print(f"{len(shards)} shards in {args.output}")
         elif args.verb == "ship":

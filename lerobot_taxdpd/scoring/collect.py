@@ -5,7 +5,8 @@ predictor's demonstrations did not use (they start at 0), so the samples are as 
 The held-out trials that evaluations report are never touched.
 
 Scenes are written in shards of `shard_size` (`shard_<first>_<last>.npz`, each written whole, then renamed),
-so a collection runs in legs: a rerun with the same arguments skips the shards in place and adds the rest.
+so a collection runs in legs: a rerun with the same arguments skips the shards in place and adds the rest, and
+shards are the unit that `workers` processes share out.
 `collection.json` records what made them (task, goal predictor and its weights' hash, K, split), and a rerun
 with other options is refused rather than mixed in.
 """
@@ -14,8 +15,10 @@ from __future__ import annotations
 
 import functools
 import json
+import multiprocessing
 import os
 from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -56,17 +59,21 @@ def collect(
     num_samples: int = 10,
     shard_size: int = 50,
     executor: str | None = None,
+    workers: int = 1,
     progress: bool = True,
 ) -> list[Path]:
     """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`.
 
     Rigid tasks execute each sample as `sim eval` does; `cloth_hang` hangs the cloth with the gc_dp3 `executor`
     (default: the one shipped with the goal predictor's name) conditioned on each sample, and stores no RMSE
-    (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger)."""
+    (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger). With `workers` > 1,
+    shards are labelled in that many processes (one torch thread each), each shard by one of them."""
     from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor, weights_digest
 
     if num_samples < 2:
         raise ValueError(f"num_samples: a scorer chooses among samples, so at least 2, got {num_samples}")
+    if workers < 1:
+        raise ValueError(f"workers: must be at least 1, got {workers}")
     source = resolve_goal_predictor(goal_policy)
     details = {
         "task": task_name,
@@ -75,31 +82,56 @@ def collect(
         "goal_policy_weights": weights_digest(source),
         "num_samples": num_samples,
     }
+    resolved_executor = None
     if task_name == CLOTH_TASK:
         executor = str(executor or goal_policy)  # recorded as given, as the goal predictor is: no machine's folders
-        resolved = resolve_executor(executor)
-        details |= {"executor": executor, "executor_weights": weights_digest(resolved)}
-        label_scene = functools.partial(_cloth_scene, source, resolved, num_samples)
-    else:
-        if executor is not None:
-            raise ValueError(f"executor: only cloth_hang executes its goals with a policy, not {task_name}")
-        label_scene = _rigid_labeller(task_name, source, num_samples)
+        resolved_executor = resolve_executor(executor)
+        details |= {"executor": executor, "executor_weights": weights_digest(resolved_executor)}
+    elif executor is not None:
+        raise ValueError(f"executor: only cloth_hang executes its goals with a policy, not {task_name}")
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     _check_collection(output / COLLECTION_FILE, details)
     seeds = list(seeds)
     chunks = [seeds[i : i + shard_size] for i in range(0, len(seeds), shard_size)]
     todo = [c for c in chunks if not (output / _shard_name(c)).is_file()]
+    job = functools.partial(_collect_shard, task_name, source, resolved_executor, num_samples, output)
     bar = tqdm(total=sum(map(len, todo)), desc=f"{task_name} scenes", disable=not progress)
-    for chunk in todo:
-        rows = {name: [] for name in SHARD_ARRAYS}
-        for seed in chunk:
-            for name, value in label_scene(seed).items():
-                rows[name].append(value)
-            bar.update()
-        _write_shard(output / _shard_name(chunk), {name: np.stack(values) for name, values in rows.items()})
+    if workers == 1 or len(todo) <= 1:
+        for chunk in todo:
+            job(chunk, bar.update)
+    else:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=context, initializer=torch.set_num_threads,
+                                 initargs=(1,)) as pool:  # fmt: skip
+            for done in as_completed([pool.submit(job, chunk) for chunk in todo]):
+                bar.update(done.result())
     bar.close()
     return shard_paths(output)
+
+
+def _collect_shard(
+    task_name: str,
+    source: str,
+    executor: str | None,
+    num_samples: int,
+    output: Path,
+    chunk: list[int],
+    on_scene: Callable[[], object] | None = None,
+) -> int:
+    """Label the scenes of one shard and write it whole; the number of scenes (what a worker reports back)."""
+    if task_name == CLOTH_TASK:
+        label_scene = functools.partial(_cloth_scene, source, executor, num_samples)
+    else:
+        label_scene = _rigid_labeller(task_name, source, num_samples)
+    rows = {name: [] for name in SHARD_ARRAYS}
+    for seed in chunk:
+        for name, value in label_scene(seed).items():
+            rows[name].append(value)
+        if on_scene is not None:
+            on_scene()
+    _write_shard(output / _shard_name(chunk), {name: np.stack(values) for name, values in rows.items()})
+    return len(chunk)
 
 
 def _row(seed: int, scene, obj, samples, success, rmse) -> dict[str, np.ndarray]:
