@@ -121,6 +121,54 @@ def test_a_trained_scorer_picks_the_sample_that_rests_where_the_first_one_rarely
     torch.testing.assert_close(reloaded.score(samples, scene), trained.score(samples, scene))
 
 
+def _reachable_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:
+    """Every candidate box rests on the board at a random place, so the scene alone cannot tell them apart; the
+    one that works is the one within 5 cm of where the box starts (an executor that cannot carry it far)."""
+    board = np.concatenate([rng.uniform(-0.3, 0.3, (200, 2)), np.zeros((200, 1))], 1)
+    box = rng.uniform(-0.04, 0.04, (64, 3)) + [0, 0, 0.04]
+    data = {"seed": [], "scene": [], "object": [], "samples": [], "success": [], "rmse": []}
+    for seed in range(scenes):
+        start = np.append(rng.uniform(-0.2, 0.2, 2), 0.1)
+        places = np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), np.zeros((k, 1))], 1)
+        near = rng.integers(k)
+        places[near, :2] = start[:2] + rng.uniform(-0.03, 0.03, 2)
+        far = np.linalg.norm(places[:, :2] - start[:2], axis=1) > 0.05
+        far[near] = False
+        data["samples"].append(box[None] + places[:, None])
+        data["success"].append(~far)
+        data["rmse"].append(np.zeros(k))
+        data["seed"].append(seed)
+        data["scene"].append(board + rng.normal(0, 0.001, board.shape))
+        data["object"].append(box + start)
+    return {name: np.asarray(values) for name, values in data.items()}
+
+
+def test_the_start_displacement_lets_a_scorer_see_what_the_scene_alone_cannot(tmp_path):
+    rng = np.random.default_rng(1)
+    folder = tmp_path / "collection"
+    folder.mkdir()
+    arrays = _reachable_scenes(rng, scenes=120, k=8)
+    np.savez(folder / "shard_000000_000119.npz", **{k: v.astype(np.float32) if v.dtype == float else v
+                                                   for k, v in arrays.items()})  # fmt: skip
+    (folder / COLLECTION_FILE).write_text(json.dumps({"task": "synthetic reachable box", "num_samples": 8}))
+    held = {}
+    for displacement in (False, True):
+        torch.manual_seed(0)
+        config = GoalScorerConfig(num_goal_points=64, hidden_dims=(32, 64), feature_dim=64,
+                                  start_displacement=displacement)  # fmt: skip
+        metrics = train_scorer(folder, tmp_path / f"scorer_{displacement}", steps=300, validation_fraction=0.25,
+                               config=config)  # fmt: skip
+        held[displacement] = metrics["held_back_scenes"]
+    print(f"held-back scenes: first sample (baseline) {held[True]['first_sample']:.2f}, scene alone "
+          f"{held[False]['scorer']:.2f}, with the start displacement {held[True]['scorer']:.2f}")  # fmt: skip
+    assert held[True]["first_sample"] < 0.4 and held[False]["scorer"] < 0.5
+    assert held[True]["scorer"] >= 0.8
+    scorer = load_scorer(tmp_path / "scorer_True")
+    samples, scene = torch.from_numpy(arrays["samples"][0]).float(), torch.from_numpy(arrays["scene"][0]).float()
+    with pytest.raises(ValueError, match="give the start cloud"):
+        scorer.score(samples, scene)
+
+
 def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsys):
     common = ["eval", "--trials", "1", "--figures", "0", "--output", str(tmp_path)]
     assert sim_main([*common, "--task", "mug_easyrack", "--goal-policy.path", "mug_easyrack",

@@ -29,6 +29,10 @@ class GoalScorerConfig:
     feature_dim: int = 256
     #: Model units per metre: the training data's median object radius becomes 3, as in the goal predictor.
     point_scale: float = 1.0
+    #: Also give each candidate point its offset from the same point of the start object (the rows of a goal
+    #: cloud are the start cloud's points moved): how far, and which way, the executor must carry each part,
+    #: which decides whether a deformable object gets there (a rigid one placed by a pose always does).
+    start_displacement: bool = False
 
 
 class GoalScorer(nn.Module, PyTorchModelHubMixin, library_name="lerobot_taxdpd", tags=["goal-scorer"]):
@@ -39,15 +43,22 @@ class GoalScorer(nn.Module, PyTorchModelHubMixin, library_name="lerobot_taxdpd",
         if isinstance(config, dict):  # as `from_pretrained` reads it back from config.json
             config = GoalScorerConfig(**{**config, "hidden_dims": tuple(config["hidden_dims"])})
         self.config = config or GoalScorerConfig()
-        channels = 3 + 4 * self.config.num_neighbors  # the point, then each neighbour's offset and distance
+        # the point, then each neighbour's offset and distance, then (optionally) its offset from the start
+        channels = 3 + 4 * self.config.num_neighbors + 3 * self.config.start_displacement
         self.encoder = PointCloudEncoder(channels, self.config.hidden_dims, self.config.feature_dim)
         self.head = mlp(self.config.feature_dim, (128, 1))
 
-    def point_features(self, goals: Tensor, scenes: Tensor) -> Tensor:
-        """(B, n, 3 + 4k): each of the first n candidate points, centred and scaled, and its k nearest scene
-        points as offsets and distances, nearest first."""
+    def point_features(self, goals: Tensor, scenes: Tensor, starts: Tensor | None = None) -> Tensor:
+        """(B, n, 3 + 4k [+ 3]): each of the first n candidate points, centred and scaled, its k nearest scene
+        points as offsets and distances, nearest first, and with `start_displacement` its offset from the same
+        point of the start object `starts` (B, N, 3)."""
         config = self.config
         goals = goals[:, : config.num_goal_points]
+        moved = None
+        if config.start_displacement:
+            if starts is None:
+                raise ValueError("this scorer reads each point's offset from the start object: give the start cloud")
+            moved = (goals - starts[:, : goals.shape[1]]) * config.point_scale
         centre = goals.mean(1, keepdim=True)
         goals, scenes = (goals - centre) * config.point_scale, (scenes - centre) * config.point_scale
         k = min(config.num_neighbors, scenes.shape[1])
@@ -59,12 +70,13 @@ class GoalScorer(nn.Module, PyTorchModelHubMixin, library_name="lerobot_taxdpd",
         features = torch.cat([offsets, distances.unsqueeze(-1)], -1).flatten(2)
         if k < config.num_neighbors:  # a scene smaller than k points: pad as if the rest were far away
             features = nn.functional.pad(features, (0, 4 * (config.num_neighbors - k)), value=10.0)
-        return torch.cat([goals, features], -1)
+        return torch.cat([goals, features] + ([moved] if moved is not None else []), -1)
 
-    def forward(self, goals: Tensor, scenes: Tensor) -> Tensor:
-        return self.head(self.encoder(self.point_features(goals, scenes))).squeeze(-1)
+    def forward(self, goals: Tensor, scenes: Tensor, starts: Tensor | None = None) -> Tensor:
+        return self.head(self.encoder(self.point_features(goals, scenes, starts))).squeeze(-1)
 
     @torch.no_grad()
-    def score(self, samples: Tensor, scene: Tensor) -> Tensor:
-        """K samples (K, N, 3) of one scene (S, 3) -> their K logits."""
-        return self(samples.float(), scene.float().expand(len(samples), -1, -1))
+    def score(self, samples: Tensor, scene: Tensor, start: Tensor | None = None) -> Tensor:
+        """K samples (K, N, 3) of one scene (S, 3) and its start object (N, 3) -> their K logits."""
+        starts = None if start is None else start.float().expand(len(samples), -1, -1)
+        return self(samples.float(), scene.float().expand(len(samples), -1, -1), starts)

@@ -65,6 +65,12 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--steps", type=int, default=2000)
     train.add_argument("--batch-scenes", type=int, default=8, help="scenes a step, each with all its K samples")
     train.add_argument("--seed", type=int, default=0)
+    train.add_argument(
+        "--start-displacement",
+        action="store_true",
+        help="also show the scorer each candidate point's offset from the start object (for cloth: how far the "
+        "executor must carry each part)",
+    )
     add_threads_argument(train)
     ship = verbs.add_parser("ship", help="measure a scorer against the first sample, paired, and ship it")
     ship.add_argument("--scorer", type=Path, required=True, help="a folder written by `train`")
@@ -120,10 +126,16 @@ def main(argv: list[str] | None = None) -> int:
             if args.ship is not None:
                 print(f"shipped as {ship_scorer(args.scorer, args.goal_policy_path, evaluation, args.ship)}")
         else:
+            from lerobot_taxdpd.policies.goal_scorer import GoalScorerConfig
             from lerobot_taxdpd.scoring.training import train_scorer
 
             metrics = train_scorer(
-                args.collection, args.output, steps=args.steps, batch_scenes=args.batch_scenes, seed=args.seed
+                args.collection,
+                args.output,
+                steps=args.steps,
+                batch_scenes=args.batch_scenes,
+                seed=args.seed,
+                config=GoalScorerConfig(start_displacement=args.start_displacement),
             )
             print(json.dumps(metrics["held_back_scenes"]))
             print(f"scorer saved in {args.output}")

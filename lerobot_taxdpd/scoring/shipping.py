@@ -124,19 +124,25 @@ def cloth_choice(summary: dict) -> dict:
 
 
 def commands(metrics: dict, task: str) -> list[str]:
-    """The collect and train commands that remake a scorer, as anyone can type them (no machine's folders)."""
+    """The collect (one per run of consecutive seeds) and train commands that remake a scorer, as anyone can
+    type them (no machine's folders)."""
     collection = metrics["collection"]
-    first, last = (int(x) for x in metrics["collected_seeds"].split(".."))
     data = f"data/scorer/{task}"
-    collect = ["python", "-m", "lerobot_taxdpd.scoring", "collect", "--task", task, "--goal-policy.path",
-               task, "--seeds", str(first), str(last), "--output", data, "--num-samples",
-               str(collection["num_samples"])]  # fmt: skip
-    if collection.get("executor", task) != task:
-        collect += ["--executor", collection["executor"]]
+    lines = []
+    for run in metrics["collected_seeds"].split(", "):
+        first, last = run.split("..")
+        collect = ["python", "-m", "lerobot_taxdpd.scoring", "collect", "--task", task, "--goal-policy.path",
+                   task, "--seeds", first, last, "--output", data, "--num-samples",
+                   str(collection["num_samples"])]  # fmt: skip
+        if collection.get("executor", task) != task:
+            collect += ["--executor", collection["executor"]]
+        lines.append(shlex.join(collect))
     train = ["python", "-m", "lerobot_taxdpd.scoring", "train", "--collection", data, "--output",
              f"outputs/scorer/{task}", "--steps", str(metrics["steps"]), "--batch-scenes",
              str(metrics["batch_scenes"]), "--seed", str(metrics["seed"])]  # fmt: skip
-    return [shlex.join(collect), shlex.join(train)]
+    if metrics.get("start_displacement"):
+        train.append("--start-displacement")
+    return [*lines, shlex.join(train)]
 
 
 def ship_scorer(scorer_dir: Path, goal_policy: str, evaluation: dict, destination: Path) -> Path:
@@ -193,7 +199,7 @@ def _result_rows(e: dict) -> tuple[str, list[str]]:
 def card(metrics: dict) -> str:
     """The scorer's model card: what it chooses among, what it was trained on, and what choosing by it measured."""
     e, held, p = metrics["evaluation"], metrics["held_back_scenes"], metrics["evaluation"]["paired"]
-    collect, train = metrics["commands"]
+    *collect, train = metrics["commands"]
     header, rows = _result_rows(e)
     rows[-1] = rows[-1].replace(f"| {_rate(e['scorer'])} |", f"| **{_rate(e['scorer'])}** |")
     table = "\n".join([header, *rows])
@@ -239,7 +245,7 @@ scenes held back from its training: the scorer's choice {held.get('scorer', 0):.
 ## Training
 
 ```bash
-{collect}
+{chr(10).join(collect)}
 {train}
 ```
 """

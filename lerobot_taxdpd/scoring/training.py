@@ -34,15 +34,30 @@ def _turned(points: Tensor, angles: Tensor) -> Tensor:
     return torch.stack([c * x - s * y, s * x + c * y, points[..., 2]], -1)
 
 
-def scene_losses(scorer: GoalScorer, samples: Tensor, scenes: Tensor, success: Tensor) -> Tensor:
-    """Scenes (B, S, 3), their K samples (B, K, N, 3) and outcomes (B, K) -> the loss."""
+def scene_losses(
+    scorer: GoalScorer, samples: Tensor, scenes: Tensor, success: Tensor, starts: Tensor | None = None
+) -> Tensor:
+    """Scenes (B, S, 3), their K samples (B, K, N, 3), outcomes (B, K) and start objects (B, N, 3) -> the loss."""
     batch, k = success.shape
-    logits = scorer(samples.flatten(0, 1), scenes.repeat_interleave(k, 0)).view(batch, k)
+    starts = None if starts is None else starts.repeat_interleave(k, 0)
+    logits = scorer(samples.flatten(0, 1), scenes.repeat_interleave(k, 0), starts).view(batch, k)
     target = success.float()
     per_sample = F.binary_cross_entropy_with_logits(logits, target)
     solvable = target.sum(1) > 0
     choice = -(torch.log_softmax(logits, 1) * target / target.sum(1, keepdim=True).clamp_min(1)).sum(1)
     return per_sample + (choice * solvable).sum() / solvable.sum().clamp_min(1)
+
+
+def seed_runs(seeds) -> str:
+    """Sorted seeds as their runs of consecutive ones, "5000..5129, 5300..5419" (a collection made in legs or
+    by several processes can leave gaps)."""
+    seeds = sorted(int(seed) for seed in seeds)
+    runs, start = [], seeds[0]
+    for previous, seed in zip(seeds, [*seeds[1:], None], strict=True):
+        if seed is None or seed != previous + 1:
+            runs.append(f"{start}..{previous}")
+            start = seed
+    return ", ".join(runs)
 
 
 def choice_rates(scores: np.ndarray, success: np.ndarray) -> dict[str, float]:
@@ -83,7 +98,8 @@ def train_scorer(
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * step / steps)))
     # only the candidate points the scorer looks at are turned in every step
     data["samples"] = data["samples"][:, :, : config.num_goal_points]
-    tensors = {name: torch.from_numpy(data[name]) for name in ("scene", "samples", "success")}
+    data["object"] = data["object"][:, : config.num_goal_points]
+    tensors = {name: torch.from_numpy(data[name]) for name in ("scene", "samples", "success", "object")}
     train_rows = np.arange(scenes - held)
     started, losses = time.perf_counter(), []
     scorer.train()
@@ -95,6 +111,7 @@ def train_scorer(
             _turned(tensors["samples"][rows], angles),
             _turned(tensors["scene"][rows], angles),
             tensors["success"][rows],
+            _turned(tensors["object"][rows], angles),
         )
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -105,16 +122,19 @@ def train_scorer(
     validation = {}
     if held:
         rows = np.arange(scenes - held, scenes)
-        scores = np.stack([scorer.score(tensors["samples"][i], tensors["scene"][i]).numpy() for i in rows])
+        scores = np.stack(
+            [scorer.score(tensors["samples"][i], tensors["scene"][i], tensors["object"][i]).numpy() for i in rows]
+        )
         validation = choice_rates(scores, data["success"][rows])
     metrics = {
         "collection": details,
         "training_scenes": int(scenes - held),
-        "training_seeds": f"{int(data['seed'][0])}..{int(data['seed'][scenes - held - 1])}",
-        "collected_seeds": f"{int(data['seed'][0])}..{int(data['seed'][-1])}",
+        "training_seeds": seed_runs(data["seed"][: scenes - held]),
+        "collected_seeds": seed_runs(data["seed"]),
         "steps": steps,
         "seed": seed,
         "batch_scenes": batch_scenes,
+        "start_displacement": config.start_displacement,
         "train_seconds": time.perf_counter() - started,
         "final_loss": float(np.mean(losses[-50:])),
         "held_back_scenes": validation,

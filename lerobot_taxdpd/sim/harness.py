@@ -132,7 +132,8 @@ def run_trial(
     samples = sample_trial_goals(predictor, trial, num_samples)
     scores = None
     if goal_selection == "scorer":
-        scores = scorer.score(torch.from_numpy(samples), torch.from_numpy(trial.scene_points)).numpy()
+        scene, start = torch.from_numpy(trial.scene_points), torch.from_numpy(trial.object_points)
+        scores = scorer.score(torch.from_numpy(samples), scene, start).numpy()
     predict_seconds = time.perf_counter() - tick
     samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold, scores)
     transform, outcome = execute_sample(trial, samples[0])

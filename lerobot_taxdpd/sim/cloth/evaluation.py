@@ -143,7 +143,9 @@ def run_trial(request: TrialRequest) -> dict:
             result["sample_goal_rmse"] = rmse.min(1).tolist()
             scores = None
             if request.scorer_path:
-                scores = _scorer(request.scorer_path).score(torch.from_numpy(predicted), torch.from_numpy(hanger_cloud))
+                scores = _scorer(request.scorer_path).score(
+                    torch.from_numpy(predicted), torch.from_numpy(hanger_cloud), torch.from_numpy(start_cloud)
+                )
                 result["sample_scores"] = scores.tolist()
                 scores = scores.numpy()
             samples = predicted
