@@ -78,33 +78,48 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
     assert not (tmp_path / "elsewhere").exists()
 
 
-def _resting_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:
-    """A shelf board and a box above it; one of the K candidate boxes rests on the board, the others float
-    2-6 cm above it or cut 2-6 cm into it, at random places. Success: the resting one."""
+def _box_collection(folder: Path, rng, scenes: int, k: int, candidates) -> dict[str, np.ndarray]:
+    """A synthetic collection in `folder`: a shelf board and a box (bottom face at z = 0) that starts above it;
+    `candidates(rng, start)` gives each scene's K box offsets (K, 3) and which of them succeed (K,)."""
     board = np.concatenate([rng.uniform(-0.3, 0.3, (200, 2)), np.zeros((200, 1))], 1)
-    box = rng.uniform(-0.04, 0.04, (64, 3)) + [0, 0, 0.04]  # bottom face at z = 0
+    box = rng.uniform(-0.04, 0.04, (64, 3)) + [0, 0, 0.04]
     data = {"seed": [], "scene": [], "object": [], "samples": [], "success": [], "rmse": []}
     for seed in range(scenes):
-        heights = rng.choice([-1, 1], k) * rng.uniform(0.02, 0.06, k)
-        heights[rng.integers(k)] = 0.0
-        places = np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), heights[:, None]], 1)
+        start = np.append(rng.uniform(-0.2, 0.2, 2), 0.1)
+        places, success = candidates(rng, start)
         data["samples"].append(box[None] + places[:, None])
-        data["success"].append(heights == 0.0)
-        data["rmse"].append(np.abs(heights))
+        data["success"].append(success)
+        data["rmse"].append(np.abs(places[:, 2]))
         data["seed"].append(seed)
         data["scene"].append(board + rng.normal(0, 0.001, board.shape))
-        data["object"].append(box)
-    return {name: np.asarray(values) for name, values in data.items()}
+        data["object"].append(box + start)
+    arrays = {name: np.asarray(values) for name, values in data.items()}
+    folder.mkdir()
+    np.savez(folder / f"shard_000000_{scenes - 1:06d}.npz",
+             **{name: v.astype(np.float32) if v.dtype == float else v for name, v in arrays.items()})  # fmt: skip
+    (folder / COLLECTION_FILE).write_text(json.dumps({"task": "synthetic box", "num_samples": k}))
+    return arrays
+
+
+def _one_resting(rng, start, k: int = 8):
+    """One of the K candidate boxes rests on the board, the others float 2-6 cm above it or cut 2-6 cm into it,
+    at random places. Success: the resting one."""
+    heights = rng.choice([-1, 1], k) * rng.uniform(0.02, 0.06, k)
+    heights[rng.integers(k)] = 0.0
+    return np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), heights[:, None]], 1), heights == 0.0
+
+
+def _one_within_reach(rng, start, k: int = 8):
+    """Every candidate box rests on the board at a random place, so the scene alone cannot tell them apart; the
+    one that works is within 5 cm of where the box starts (an executor that cannot carry it far)."""
+    places = np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), np.zeros((k, 1))], 1)
+    places[rng.integers(k), :2] = start[:2] + rng.uniform(-0.03, 0.03, 2)
+    return places, np.linalg.norm(places[:, :2] - start[:2], axis=1) <= 0.05
 
 
 def test_a_trained_scorer_picks_the_sample_that_rests_where_the_first_one_rarely_does(tmp_path):
-    rng = np.random.default_rng(0)
     folder = tmp_path / "collection"
-    folder.mkdir()
-    arrays = _resting_scenes(rng, scenes=120, k=8)
-    np.savez(folder / "shard_000000_000119.npz", **{k: v.astype(np.float32) if v.dtype == float else v
-                                                   for k, v in arrays.items()})  # fmt: skip
-    (folder / COLLECTION_FILE).write_text(json.dumps({"task": "synthetic resting box", "num_samples": 8}))
+    arrays = _box_collection(folder, np.random.default_rng(0), scenes=120, k=8, candidates=_one_resting)
     torch.manual_seed(0)
     config = GoalScorerConfig(num_goal_points=64, hidden_dims=(32, 64), feature_dim=64)
     metrics = train_scorer(
@@ -121,36 +136,9 @@ def test_a_trained_scorer_picks_the_sample_that_rests_where_the_first_one_rarely
     torch.testing.assert_close(reloaded.score(samples, scene), trained.score(samples, scene))
 
 
-def _reachable_scenes(rng, scenes: int, k: int) -> dict[str, np.ndarray]:
-    """Every candidate box rests on the board at a random place, so the scene alone cannot tell them apart; the
-    one that works is the one within 5 cm of where the box starts (an executor that cannot carry it far)."""
-    board = np.concatenate([rng.uniform(-0.3, 0.3, (200, 2)), np.zeros((200, 1))], 1)
-    box = rng.uniform(-0.04, 0.04, (64, 3)) + [0, 0, 0.04]
-    data = {"seed": [], "scene": [], "object": [], "samples": [], "success": [], "rmse": []}
-    for seed in range(scenes):
-        start = np.append(rng.uniform(-0.2, 0.2, 2), 0.1)
-        places = np.concatenate([rng.uniform(-0.2, 0.2, (k, 2)), np.zeros((k, 1))], 1)
-        near = rng.integers(k)
-        places[near, :2] = start[:2] + rng.uniform(-0.03, 0.03, 2)
-        far = np.linalg.norm(places[:, :2] - start[:2], axis=1) > 0.05
-        far[near] = False
-        data["samples"].append(box[None] + places[:, None])
-        data["success"].append(~far)
-        data["rmse"].append(np.zeros(k))
-        data["seed"].append(seed)
-        data["scene"].append(board + rng.normal(0, 0.001, board.shape))
-        data["object"].append(box + start)
-    return {name: np.asarray(values) for name, values in data.items()}
-
-
 def test_the_start_displacement_lets_a_scorer_see_what_the_scene_alone_cannot(tmp_path):
-    rng = np.random.default_rng(1)
     folder = tmp_path / "collection"
-    folder.mkdir()
-    arrays = _reachable_scenes(rng, scenes=120, k=8)
-    np.savez(folder / "shard_000000_000119.npz", **{k: v.astype(np.float32) if v.dtype == float else v
-                                                   for k, v in arrays.items()})  # fmt: skip
-    (folder / COLLECTION_FILE).write_text(json.dumps({"task": "synthetic reachable box", "num_samples": 8}))
+    arrays = _box_collection(folder, np.random.default_rng(1), scenes=120, k=8, candidates=_one_within_reach)
     held = {}
     for displacement in (False, True):
         torch.manual_seed(0)
