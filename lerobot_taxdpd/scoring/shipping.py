@@ -207,6 +207,9 @@ def card(metrics: dict) -> str:
     best = f" The best of the K was a valid goal in {e['executed_goal_valid']['best_of_k']:.0%} of the scenes." if (
         "executed_goal_valid" in e
     ) else ""
+    outcomes = "(hung, not hung)" if e["task"] == CLOTH_TASK else "(successful, failed)"
+    ordered = held.get("pairs_ordered")
+    pairs = f"; it orders {ordered:.0%} of their {outcomes} sample pairs right" if ordered is not None else ""
     use = f"python -m lerobot_taxdpd.sim eval --task {e['task']} --goal-policy.path {e['task']}"
     use += " --policy.path cloth_hang" * (e["task"] == CLOTH_TASK) + " --goal-selection scorer"
     return f"""---
@@ -234,7 +237,7 @@ each executed in simulation, on {metrics['training_scenes']} training-geometry s
 Paired against the {baseline} sample: both {p['both']}, only the scorer's {p['only_scorer']}, only the
 {baseline} {p['only_baseline']}, neither {p['neither']}.{best} On {held.get('scenes', 0)} training-geometry
 scenes held back from its training: the scorer's choice {held.get('scorer', 0):.0%}, the first sample
-{held.get('first_sample', 0):.0%}, the best of the K {held.get('any_sample', 0):.0%}.
+{held.get('first_sample', 0):.0%}, the best of the K {held.get('any_sample', 0):.0%}{pairs}.
 
 ## Use
 

@@ -61,13 +61,22 @@ def seed_runs(seeds) -> str:
 
 
 def choice_rates(scores: np.ndarray, success: np.ndarray) -> dict[str, float]:
-    """Success of executing the highest-scored sample of each scene, the first, and the best possible."""
+    """Success of executing the highest-scored sample of each scene, the first, and the best possible; and the
+    share of (successful, failed) sample pairs of one scene that the scores order right (ties count half, so
+    0.5 is chance), which rests on every pair rather than on one choice a scene and so varies less."""
     picked = success[np.arange(len(success)), scores.argmax(1)]
+    right = pairs = 0.0
+    for row_scores, row_success in zip(scores, success.astype(bool), strict=True):
+        difference = row_scores[row_success][:, None] - row_scores[~row_success][None, :]
+        right += (difference > 0).sum() + 0.5 * (difference == 0).sum()
+        pairs += difference.size
     return {
         "scorer": float(picked.mean()),
         "first_sample": float(success[:, 0].mean()),
         "any_sample": float(success.any(1).mean()),
         "scenes": len(success),
+        "pairs_ordered": float(right / pairs) if pairs else float("nan"),
+        "pairs": int(pairs),
     }
 
 
