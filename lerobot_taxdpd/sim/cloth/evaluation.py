@@ -460,7 +460,7 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     goal_checkpoint = Path(config["goal_policy_path"])
     goal_predictor = load_goal_predictor(goal_checkpoint)
     goal_predictor.metrics = {
-        **goal_predictor.metrics,  # a shipped predictor re-evaluated keeps how it was trained
+        **_kept(goal_predictor.metrics),  # a shipped predictor re-evaluated keeps how it was trained
         **_training(goal_checkpoint),
         **evaluated,
         **_at_k(summary.get("goal_metrics", {}), config["num_goal_samples"]),
@@ -474,13 +474,19 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     save_shipped(goal_predictor, goal_checkpoint, shipped)
     executor_checkpoint = Path(config["policy_path"])
     executor = GcDp3Policy.from_pretrained(executor_checkpoint)  # save_shipped keeps its average alone
-    executor.metrics = {**_training(executor_checkpoint), **evaluated}
+    executor.metrics = {**_kept(executor.metrics), **_training(executor_checkpoint), **evaluated}
     save_shipped(executor, executor_checkpoint, shipped / EXECUTOR_DIR)
     if config["goal_selection"] == "scorer":
         from lerobot_taxdpd.scoring.shipping import cloth_choice, ship_scorer
 
         ship_scorer(Path(config["scorer_path"]), str(shipped), cloth_choice(summary), destination)
     return shipped
+
+
+def _kept(metrics: dict) -> dict:
+    """What a re-shipped checkpoint keeps of its old metrics: how it was trained and measured, less the rules
+    compared in the old evaluation (this one's replace them, or say none were compared)."""
+    return {key: value for key, value in metrics.items() if key != "success_by_selection"}
 
 
 def _rate_fields(summary: dict) -> dict:
