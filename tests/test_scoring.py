@@ -14,7 +14,7 @@ from lerobot_taxdpd.goal_predictors import load_scorer, resolve_goal_predictor, 
 from lerobot_taxdpd.maths.selection import executed_first
 from lerobot_taxdpd.policies.goal_scorer import GoalScorer, GoalScorerConfig
 from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
-from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
+from lerobot_taxdpd.scoring.shipping import commands, evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
 from lerobot_taxdpd.sim.cli import main as sim_main
 
@@ -220,3 +220,17 @@ def test_a_shipped_scorer_is_found_by_its_predictors_name(tmp_path):
     assert report["goal_selection"] == "scorer" and report["scorer"] == "book_shelf"
     card = json.loads((Path(resolve_scorer("book_shelf")) / "metrics.json").read_text())
     assert card["collection"]["goal_policy_weights"] == weights_digest(resolve_goal_predictor("book_shelf"))
+
+
+def test_a_cards_commands_remake_the_scorer_as_it_was_trained():
+    """One collect command per run of consecutive seeds (collections made in legs leave gaps), and the train
+    command with the options that changed the scorer, as anyone can type them."""
+    metrics = {
+        "collection": {"num_samples": 10, "executor": "cloth_hang"},
+        "collected_seeds": "5000..5109, 5300..5409",
+        "steps": 2000, "batch_scenes": 8, "seed": 0, "num_goal_points": 256, "start_displacement": True,
+    }  # fmt: skip
+    *collect, train = commands(metrics, "cloth_hang")
+    assert [line.split("--seeds ")[1].split(" --")[0] for line in collect] == ["5000 5109", "5300 5409"]
+    assert all("--executor" not in line for line in collect), "the executor shipped with the predictor's name"
+    assert train.endswith("--seed 0 --num-goal-points 256 --start-displacement")

@@ -66,6 +66,12 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--batch-scenes", type=int, default=8, help="scenes a step, each with all its K samples")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument(
+        "--num-goal-points",
+        type=int,
+        default=None,
+        help="candidate points the scorer looks at, the first of each cloud (default: GoalScorerConfig's)",
+    )
+    train.add_argument(
         "--start-displacement",
         action="store_true",
         help="also show the scorer each candidate point's offset from the start object (for cloth: how far the "
@@ -135,7 +141,10 @@ def main(argv: list[str] | None = None) -> int:
                 steps=args.steps,
                 batch_scenes=args.batch_scenes,
                 seed=args.seed,
-                config=GoalScorerConfig(start_displacement=args.start_displacement),
+                config=GoalScorerConfig(
+                    **({"num_goal_points": args.num_goal_points} if args.num_goal_points else {}),
+                    start_displacement=args.start_displacement,
+                ),
             )
             print(json.dumps(metrics["held_back_scenes"]))
             print(f"scorer saved in {args.output}")

@@ -18,6 +18,7 @@ import numpy as np
 from lerobot_taxdpd.data.schema import CLOTH_TASK, METRICS_FILE
 from lerobot_taxdpd.goal_predictors import weights_digest
 from lerobot_taxdpd.maths.metrics import paired_outcomes
+from lerobot_taxdpd.policies.goal_scorer import GoalScorerConfig
 
 SCORER_FILES = ("config.json", "model.safetensors")
 
@@ -140,6 +141,8 @@ def commands(metrics: dict, task: str) -> list[str]:
     train = ["python", "-m", "lerobot_taxdpd.scoring", "train", "--collection", data, "--output",
              f"outputs/scorer/{task}", "--steps", str(metrics["steps"]), "--batch-scenes",
              str(metrics["batch_scenes"]), "--seed", str(metrics["seed"])]  # fmt: skip
+    if metrics.get("num_goal_points", GoalScorerConfig.num_goal_points) != GoalScorerConfig.num_goal_points:
+        train += ["--num-goal-points", str(metrics["num_goal_points"])]
     if metrics.get("start_displacement"):
         train.append("--start-displacement")
     return [*lines, shlex.join(train)]

@@ -143,6 +143,7 @@ def train_scorer(
         "steps": steps,
         "seed": seed,
         "batch_scenes": batch_scenes,
+        "num_goal_points": config.num_goal_points,
         "start_displacement": config.start_displacement,
         "train_seconds": time.perf_counter() - started,
         "final_loss": float(np.mean(losses[-50:])),
