@@ -80,6 +80,64 @@ def choice_rates(scores: np.ndarray, success: np.ndarray) -> dict[str, float]:
     }
 
 
+def fit_scorer(
+    data: dict[str, np.ndarray],
+    train_rows: np.ndarray,
+    *,
+    steps: int = 2000,
+    batch_scenes: int = 8,
+    learning_rate: float = 1e-3,
+    seed: int = 0,
+    config: GoalScorerConfig | None = None,
+) -> tuple[GoalScorer, list[float]]:
+    """A scorer (eval mode) trained on the scenes `train_rows` of a loaded collection, and its losses."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    radius = float(object_radius(torch.from_numpy(data["object"])).median())
+    config = config or GoalScorerConfig()
+    config.point_scale = 3.0 / radius  # as the goal predictor: the median object radius is 3 model units
+    scorer = GoalScorer(config)
+    optimizer = torch.optim.AdamW(scorer.parameters(), lr=learning_rate, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * step / steps)))
+    tensors = _candidate_tensors(data, config)
+    losses = []
+    scorer.train()
+    for _ in range(steps):
+        rows = torch.from_numpy(rng.choice(train_rows, size=min(batch_scenes, len(train_rows)), replace=False))
+        angles = torch.from_numpy(rng.uniform(-math.pi, math.pi, len(rows))).float()
+        loss = scene_losses(
+            scorer,
+            _turned(tensors["samples"][rows], angles),
+            _turned(tensors["scene"][rows], angles),
+            tensors["success"][rows],
+            _turned(tensors["object"][rows], angles),
+        )
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        losses.append(loss.item())
+    return scorer.eval(), losses
+
+
+def score_scenes(scorer: GoalScorer, data: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
+    """The scorer's logits (len(rows), K) for the K samples of each of these scenes of a loaded collection."""
+    tensors = _candidate_tensors(data, scorer.config)
+    return np.stack(
+        [scorer.score(tensors["samples"][i], tensors["scene"][i], tensors["object"][i]).numpy() for i in rows]
+    )
+
+
+def _candidate_tensors(data: dict[str, np.ndarray], config: GoalScorerConfig) -> dict[str, Tensor]:
+    """Scenes, outcomes and the candidate points the scorer looks at (only those are turned in every step)."""
+    return {
+        "scene": torch.from_numpy(data["scene"]),
+        "samples": torch.from_numpy(data["samples"][:, :, : config.num_goal_points]),
+        "object": torch.from_numpy(data["object"][:, : config.num_goal_points]),
+        "success": torch.from_numpy(data["success"]),
+    }
+
+
 def train_scorer(
     collection: Path,
     output: Path,
@@ -97,44 +155,16 @@ def train_scorer(
     held = max(1, round(scenes * validation_fraction)) if scenes > 1 else 0
     if scenes - held < 1:
         raise ValueError(f"{collection}: {scenes} scenes; a scorer needs at least 2 (one to train, one to check)")
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    radius = float(object_radius(torch.from_numpy(data["object"])).median())
-    config = config or GoalScorerConfig()
-    config.point_scale = 3.0 / radius  # as the goal predictor: the median object radius is 3 model units
-    scorer = GoalScorer(config)
-    optimizer = torch.optim.AdamW(scorer.parameters(), lr=learning_rate, weight_decay=1e-4)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * step / steps)))
-    # only the candidate points the scorer looks at are turned in every step
-    data["samples"] = data["samples"][:, :, : config.num_goal_points]
-    data["object"] = data["object"][:, : config.num_goal_points]
-    tensors = {name: torch.from_numpy(data[name]) for name in ("scene", "samples", "success", "object")}
-    train_rows = np.arange(scenes - held)
-    started, losses = time.perf_counter(), []
-    scorer.train()
-    for _ in range(steps):
-        rows = torch.from_numpy(rng.choice(train_rows, size=min(batch_scenes, len(train_rows)), replace=False))
-        angles = torch.from_numpy(rng.uniform(-math.pi, math.pi, len(rows))).float()
-        loss = scene_losses(
-            scorer,
-            _turned(tensors["samples"][rows], angles),
-            _turned(tensors["scene"][rows], angles),
-            tensors["success"][rows],
-            _turned(tensors["object"][rows], angles),
-        )
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        schedule.step()
-        losses.append(loss.item())
-    scorer.eval()
+    started = time.perf_counter()
+    scorer, losses = fit_scorer(
+        data, np.arange(scenes - held), steps=steps, batch_scenes=batch_scenes, learning_rate=learning_rate,
+        seed=seed, config=config,
+    )  # fmt: skip
+    config = scorer.config
     validation = {}
     if held:
         rows = np.arange(scenes - held, scenes)
-        scores = np.stack(
-            [scorer.score(tensors["samples"][i], tensors["scene"][i], tensors["object"][i]).numpy() for i in rows]
-        )
-        validation = choice_rates(scores, data["success"][rows])
+        validation = choice_rates(score_scenes(scorer, data, rows), data["success"][rows])
     metrics = {
         "collection": details,
         "training_scenes": int(scenes - held),
