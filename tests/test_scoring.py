@@ -194,19 +194,17 @@ def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path, c
     card = (shipped / "README.md").read_text()
     assert "| consensus (the sample the others agree with) |" in card and "executed goal valid" in card
     assert "--goal-policy.path cloth_hang --policy.path cloth_hang --goal-selection scorer" in card
-    # The pipeline shipped by `sim eval --ship` with the scorer choosing: goal predictor, executor and scorer,
-    # the other rules in the goal predictor's card; refused before any trial without them to compare against.
+    # `sim eval --ship` ships the pipeline with a rule that needs no scorer: the scorer's choice is refused before
+    # any trial, and a scorer compared beside the consensus lands in the goal predictor's card.
     argv = ["eval", "--task", "cloth_hang", "--goal-policy.path", "cloth_hang", "--policy.path", "cloth_hang",
             "--scorer.path", str(tmp_path / "scorer"), "--trials", "1", "--num-samples", "2", "--figures", "0",
             "--output", str(tmp_path / "eval"), "--ship", str(tmp_path / "pipeline")]  # fmt: skip
     assert sim_main(argv) != 0 and not (tmp_path / "pipeline").exists()
-    assert "add --compare-selections consensus first" in capsys.readouterr().err
-    assert sim_main([*argv, "--compare-selections", "consensus", "first"]) == 0
-    shipped = tmp_path / "pipeline" / "cloth_hang"
-    assert load_scorer(shipped / "scorer").config == load_scorer(tmp_path / "scorer").config
-    predictor_card = (shipped / "README.md").read_text()
-    assert "scorer sample executed by gc_dp3" in predictor_card and "chosen by another rule" in predictor_card
-    assert json.loads((shipped / "scorer" / "metrics.json").read_text())["evaluation"]["baseline_rule"] == "consensus"
+    assert "ship a scorer with python -m lerobot_taxdpd.scoring ship" in capsys.readouterr().err
+    assert sim_main([*argv, "--goal-selection", "consensus", "--compare-selections", "scorer", "first"]) == 0
+    predictor_card = (tmp_path / "pipeline" / "cloth_hang" / "README.md").read_text()
+    assert "consensus sample executed by gc_dp3" in predictor_card
+    assert "chosen by another rule and executed alike: scorer" in predictor_card
     with pytest.raises(ValueError, match="only cloth_hang executes its goals with a policy"):
         collect("mug_easyrack", "mug_easyrack", range(1), tmp_path / "rigid", executor="cloth_hang")
 

@@ -296,16 +296,18 @@ def _workers(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cloth(args: argparse.Namespace) -> int:
-    from lerobot_taxdpd.sim.cloth.evaluation import EVAL_FILE, evaluate, ship_pipeline, summary_line
+    from lerobot_taxdpd.sim.cloth.evaluation import (
+        EVAL_FILE,
+        SHIP_WITH_A_SCORER,
+        evaluate,
+        ship_pipeline,
+        summary_line,
+    )
 
     output = args.output or OUTPUT[CLOTH_TASK]
     selection, scorer_path, _ = _scorer_selection(args, args.goal_policy_path)  # workers load it by its path
-    compared = set(args.compared_selections or ())
-    if args.ship is not None and selection == "scorer" and not {"consensus", "first"} <= compared:
-        raise ValueError(
-            "--ship with a scorer ships the scorer too, measured against the other rules: add "
-            "--compare-selections consensus first"
-        )
+    if args.ship is not None and selection == "scorer":
+        raise ValueError(SHIP_WITH_A_SCORER)
     summary = evaluate(
         split=args.split,
         seed=args.seed,

@@ -40,6 +40,13 @@ from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
 from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 
+#: Why `--ship` takes no scorer's choice: the shipped pipeline must run with what it ships.
+SHIP_WITH_A_SCORER = (
+    "--ship: the pipeline ships with a rule that needs no scorer (--goal-selection consensus or first; compare "
+    "the scorer with --compare-selections scorer); ship a scorer with python -m lerobot_taxdpd.scoring ship "
+    "--task cloth_hang"
+)
+
 #: The report `evaluate` writes into its output folder, beside `figures/`.
 EVAL_FILE = "cloth_hang_eval.json"
 
@@ -429,8 +436,8 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     """Save the evaluated goal predictor as the shipped `cloth_hang` and its gc_dp3 executor as
     `cloth_hang/executor`, each with this evaluation as its metrics (success with the predicted goal and, when
     measured, with ground-truth goals and by the compared selection rules; coverage and precision RMSE for the
-    goal predictor). A scorer that chose the goals ships as `cloth_hang/scorer`, measured against the consensus
-    and first samples of the same run."""
+    goal predictor). A scorer ships on its own (`python -m lerobot_taxdpd.scoring ship`), so the pipeline's
+    rule is one that needs none."""
     from lerobot_taxdpd.goal_predictors import EXECUTOR_DIR, SHIPPED_DIR, load_goal_predictor
     from lerobot_taxdpd.policies.gc_dp3.modeling_gc_dp3 import GcDp3Policy
     from lerobot_taxdpd.sim.pretrain import save_shipped
@@ -438,6 +445,8 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     config = summary["config"]
     if not (config["goal_policy_path"] and config["policy_path"]) or "predicted_goal" not in summary:
         raise ValueError("--ship: needs --goal-policy.path and --policy.path (success with the predicted goal)")
+    if config["goal_selection"] == "scorer":
+        raise ValueError(SHIP_WITH_A_SCORER)
     rates = {name: _rate_fields(summary[name]) for name in ("predicted_goal", "ground_truth_goal") if name in summary}
     evaluated = {
         "task": "cloth_hang",
@@ -476,10 +485,6 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
     executor = GcDp3Policy.from_pretrained(executor_checkpoint)  # save_shipped keeps its average alone
     executor.metrics = {**_kept(executor.metrics), **_training(executor_checkpoint), **evaluated}
     save_shipped(executor, executor_checkpoint, shipped / EXECUTOR_DIR)
-    if config["goal_selection"] == "scorer":
-        from lerobot_taxdpd.scoring.shipping import cloth_choice, ship_scorer
-
-        ship_scorer(Path(config["scorer_path"]), str(shipped), cloth_choice(summary), destination)
     return shipped
 
 
