@@ -167,6 +167,8 @@ def test_eval_explains_what_is_missing(checkpoints, tmp_path, capsys):
         ([*base, "--predictor", "oracle"], "--predictor: only applies to a rigid task"),
         ([*base, "--goal-policy.path", "cloth_hang", "--compare-selections", "first"], "compared selections are "
          "executed: give --goal-policy.path and --policy.path"),
+        ([*base, "--goal-policy.path", "cloth_hang", "--policy.path", str(gc_dp3), "--compare-selections",
+          "consensus"], "compared selections: each rule once, and not the executed one (consensus)"),
     ]:
         assert main(argv) == 1
         assert message in capsys.readouterr().err

@@ -332,6 +332,11 @@ def evaluate(
         )
     for rule in (goal_selection, *compared_selections):
         check_goal_selection(rule)
+    if goal_selection in compared_selections or len(set(compared_selections)) < len(compared_selections):
+        raise ValueError(
+            f"compared selections: each rule once, and not the executed one ({goal_selection}); "
+            f"got {', '.join(compared_selections)}"
+        )
     if compared_selections and not (policy_path and goal_policy_path):
         raise ValueError("compared selections are executed: give --goal-policy.path and --policy.path")
     if ("scorer" in (goal_selection, *compared_selections)) != (scorer_path is not None):
