@@ -145,6 +145,7 @@ def _row(seed: int, scene, obj, samples, success, rmse) -> dict[str, np.ndarray]
     }
 
 
+@functools.lru_cache(maxsize=1)  # one per process, whatever the number of shards it labels
 def _rigid_labeller(task_name: str, source: str, num_samples: int) -> Callable[[int], dict[str, np.ndarray]]:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.sim.harness import sample_trial_goals

@@ -55,7 +55,10 @@ def evaluate_choice(
         "baseline_rule": "first",
         "baseline": first["success"],
         "scorer": chosen["success"],
-        "paired": _paired(chosen["per_trial"], first["per_trial"]),
+        "paired": paired_outcomes(
+            [t["success"] for t in chosen["per_trial"]], [t["success"] for t in first["per_trial"]],
+            ("scorer", "baseline"),
+        ),
         "scorer_translation_error_mm": chosen["translation_error_mm"]["median"],
         "scorer_rotation_error_deg": chosen["rotation_error_deg"]["median"],
         "baseline_translation_error_mm": first["translation_error_mm"]["median"],
@@ -63,8 +66,6 @@ def evaluate_choice(
     }
 
 
-def _paired(chosen: list[dict], baseline: list[dict]) -> dict[str, int]:
-    return paired_outcomes([t["success"] for t in chosen], [t["success"] for t in baseline], ("scorer", "baseline"))
 
 
 def _evaluate_cloth_choice(
@@ -102,19 +103,21 @@ def cloth_choice(summary: dict) -> dict:
             "a cloth scorer is measured by executing its choice with the consensus and first samples compared "
             "(--goal-selection scorer --compare-selections consensus first)"
         )
+    from lerobot_taxdpd.sim.cloth.evaluation import rate_fields
+
     runs = [t for t in summary["per_trial"] if "predicted_goal" in t]
-    consensus = [t["compared_selections"]["consensus"]["predicted_goal"] for t in runs]
-    rate = ("success_rate", "ci95_low", "ci95_high", "trials")
+    paired = compared["consensus"]["paired"]  # the scorer's outcomes against the consensus's, as the report counts
     threshold = config["goal_threshold_m"]
     return {
         "task": CLOTH_TASK,
         "trials": f"{summary['trials']} held-out scenes ({config['split']} geometry, seeds {config['seeds']}), "
         f"K = {config['num_goal_samples']}, the chosen goal hung by gc_dp3",
         "baseline_rule": "consensus",
-        "baseline": {k: compared["consensus"][k] for k in rate},
-        "scorer": {k: summary["predicted_goal"][k] for k in rate},
-        "paired": _paired([t["predicted_goal"] for t in runs], consensus),
-        "first_sample": {k: compared["first"][k] for k in rate},
+        "baseline": rate_fields(compared["consensus"]),
+        "scorer": rate_fields(summary["predicted_goal"]),
+        "paired": {"both": paired["both"], "only_scorer": paired["only_scorer"],
+                   "only_baseline": paired["only_consensus"], "neither": paired["neither"]},  # fmt: skip
+        "first_sample": rate_fields(compared["first"]),
         "executed_goal_valid": {
             "scorer": summary["executed_goal_valid"],
             "consensus": compared["consensus"]["executed_goal_valid"],
@@ -173,8 +176,9 @@ def ship_scorer(scorer_dir: Path, goal_policy: str, evaluation: dict, destinatio
     return target
 
 
-def _rate(summary: dict) -> str:
-    return f"{summary['success_rate']:.0%} ({summary['ci95_low']:.0%}-{summary['ci95_high']:.0%})"
+def _rate(summary: dict, bold: bool = False) -> str:
+    text = f"{summary['success_rate']:.0%} ({summary['ci95_low']:.0%}-{summary['ci95_high']:.0%})"
+    return f"**{text}**" if bold else text
 
 
 _RULE_LABELS = {
@@ -190,12 +194,12 @@ def _result_rows(e: dict) -> tuple[str, list[str]]:
     if e["task"] == CLOTH_TASK:
         rates = {"first": e["first_sample"], "consensus": e["baseline"], "scorer": e["scorer"]}
         valid = e["executed_goal_valid"]
-        rows = [f"| {_RULE_LABELS[r]} | {_rate(rate)} | {valid[r]:.0%} |" for r, rate in rates.items()]
+        rows = [f"| {_RULE_LABELS[r]} | {_rate(rate, r == 'scorer')} | {valid[r]:.0%} |" for r, rate in rates.items()]
         return "| executed sample | success | executed goal valid |\n|---|---|---|", rows
     rows = []
     for rule, key in ((e["baseline_rule"], "baseline"), ("scorer", "scorer")):
         errors = f"{e[f'{key}_translation_error_mm']:.1f} mm / {e[f'{key}_rotation_error_deg']:.1f} deg"
-        rows.append(f"| {_RULE_LABELS[rule]} | {_rate(e[key])} | {errors} |")
+        rows.append(f"| {_RULE_LABELS[rule]} | {_rate(e[key], rule == 'scorer')} | {errors} |")
     return "| executed sample | success | translation / rotation (median) |\n|---|---|---|", rows
 
 
@@ -204,7 +208,6 @@ def card(metrics: dict) -> str:
     e, held, p = metrics["evaluation"], metrics["held_back_scenes"], metrics["evaluation"]["paired"]
     *collect, train = metrics["commands"]
     header, rows = _result_rows(e)
-    rows[-1] = rows[-1].replace(f"| {_rate(e['scorer'])} |", f"| **{_rate(e['scorer'])}** |")
     table = "\n".join([header, *rows])
     baseline = e["baseline_rule"]
     best = f" The best of the K was a valid goal in {e['executed_goal_valid']['best_of_k']:.0%} of the scenes." if (

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lerobot_taxdpd.data.schema import GOAL_CLOUD_KEY
+from lerobot_taxdpd.data.schema import CLOTH_TASK, GOAL_CLOUD_KEY
 from lerobot_taxdpd.maths.metrics import (
     coverage_precision,
     coverage_precision_from_rmse,
@@ -452,9 +452,9 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
         raise ValueError("--ship: needs --goal-policy.path and --policy.path (success with the predicted goal)")
     if config["goal_selection"] == "scorer":
         raise ValueError(SHIP_WITH_A_SCORER)
-    rates = {name: _rate_fields(summary[name]) for name in ("predicted_goal", "ground_truth_goal") if name in summary}
+    rates = {name: rate_fields(summary[name]) for name in ("predicted_goal", "ground_truth_goal") if name in summary}
     evaluated = {
-        "task": "cloth_hang",
+        "task": CLOTH_TASK,
         "description": TASK_DESCRIPTION,
         "evaluation": f"{summary['trials']} held-out scenes (split {config['split']}, seeds {config['seeds']}), "
         f"K = {config['num_goal_samples']}, goal predictor {_source(config['goal_policy_path'], SHIPPED_DIR)}, "
@@ -464,13 +464,13 @@ def ship_pipeline(summary: dict, destination: Path) -> Path:
         "success": rates["predicted_goal"],
         **({"success_with_ground_truth_goals": rates["ground_truth_goal"]} if "ground_truth_goal" in rates else {}),
         **(
-            {"success_by_selection": {rule: _rate_fields(s) for rule, s in summary["compared_selections"].items()}}
+            {"success_by_selection": {rule: rate_fields(s) for rule, s in summary["compared_selections"].items()}}
             if summary.get("compared_selections")
             else {}
         ),
         "seconds_per_trial": summary["median_seconds_per_trial"],
     }
-    shipped = Path(destination) / "cloth_hang"
+    shipped = Path(destination) / CLOTH_TASK
     goal_checkpoint = Path(config["goal_policy_path"])
     goal_predictor = load_goal_predictor(goal_checkpoint)
     goal_predictor.metrics = {
@@ -499,7 +499,8 @@ def _kept(metrics: dict) -> dict:
     return {key: value for key, value in metrics.items() if key != "success_by_selection"}
 
 
-def _rate_fields(summary: dict) -> dict:
+def rate_fields(summary: dict) -> dict:
+    """A success summary's rate and interval, without what else the report keeps beside them."""
     return {k: summary[k] for k in ("success_rate", "ci95_low", "ci95_high", "trials")}
 
 
