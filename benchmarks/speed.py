@@ -45,7 +45,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.apps.synthetic import make_slot_scene, write_slot_dataset
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.maths.geometry import device_code_paths
+from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_indices
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import PointMLPEncoder, PointNet2Encoder
 from lerobot_taxdpd.recipes import recipe_path
@@ -77,13 +77,24 @@ def matmul_gflops(dtype: torch.dtype, size: int, repeats: int) -> float:
 
 
 def slot_batch(batch: int, n_o: int, n_s: int) -> dict[str, torch.Tensor]:
+    """Slot scenes with clouds as the tasks record them: reduced from denser samplings by FPS, so in FPS order."""
     rng = np.random.default_rng(0)
-    data = [make_slot_scene(rng, n_o, n_s) for _ in range(batch)]
-    return {
-        OBJECT_KEY: torch.from_numpy(np.stack([d.object_points for d in data])),
-        SCENE_KEY: torch.from_numpy(np.stack([d.scene_points for d in data])),
-        ACTION_KEY: torch.from_numpy(np.stack([d.goal_points for d in data])),
-    }
+    clouds = {OBJECT_KEY: [], SCENE_KEY: [], ACTION_KEY: []}
+    for _ in range(batch):
+        scene = make_slot_scene(rng, 2 * n_o, 2 * n_s)
+        keep = farthest_point_indices(scene.object_points, n_o)
+        clouds[OBJECT_KEY].append(scene.object_points[keep])
+        clouds[ACTION_KEY].append(scene.goal_points[keep])
+        clouds[SCENE_KEY].append(scene.scene_points[farthest_point_indices(scene.scene_points, n_s)])
+    return {key: torch.from_numpy(np.stack(values)) for key, values in clouds.items()}
+
+
+def recorded_policy(config: TaxDPDConfig) -> TaxDPDPolicy:
+    """The policy in training mode as `lerobot-train` makes it on one of the project's datasets, which record
+    their clouds in FPS order (the dataset's metadata says so, and the step skips FPS for the layouts)."""
+    policy = TaxDPDPolicy(config).train()
+    policy.training_clouds_fps_ordered = (True, True)
+    return policy
 
 
 def stage_of(module_name: str, module: torch.nn.Module) -> str | None:
@@ -144,7 +155,7 @@ def launch_figures(fields: dict, batch_size: int, cloud_sizes: tuple[int, int]) 
     clouds of `cloud_sizes` (object, scene) points, as recorded."""
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
-    policy = TaxDPDPolicy(config).train()
+    policy = recorded_policy(config)
     optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
     batch = slot_batch(batch_size, *cloud_sizes)
 
@@ -196,7 +207,7 @@ def policy_figures(fields: dict, args, cloud_sizes: tuple[int, int]) -> dict:
     """Step and sampling times in the policy on clouds of `cloud_sizes` points (object, scene), as recorded."""
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(device="cpu", point_scale=66.0, **fields)
-    policy = TaxDPDPolicy(config).train()
+    policy = recorded_policy(config)
     optimizer = config.get_optimizer_preset().build(policy.get_optim_params())
     batch = slot_batch(args.batch_size, *cloud_sizes)
 

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from conftest import run_cli
+from lerobot_taxdpd.data.point_order import read_point_order
 from lerobot_taxdpd.data.schema import ACTION_KEY, DEFAULT_POINT_COUNTS, GOAL_TRANSFORM_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.generate import generate_dataset
@@ -57,6 +58,8 @@ def test_generated_demos_round_trip_through_lerobot(tmp_path):
     card = json.loads((root / "meta" / "taxdpd_card.json").read_text())["card"]
     assert card["details"]["geometry split"] == "train" and card["details"]["scene seeds"] == "7..8"
     assert "--seed 7" in card["command"]
+    # The task reduces its renders by FPS, so the step may take the encoders' layouts as prefixes.
+    assert read_point_order(root) == {OBJECT_KEY: True, SCENE_KEY: True}
 
     # Same seed, same data: the dataset is reproducible.
     again = generate_dataset(

@@ -1,7 +1,8 @@
 """One writer for every dataset the project produces: converters, simulated demos and cloth rollouts.
 
 It writes a LeRobot v3.0 dataset into a hidden partial folder beside the output and moves it into place
-only once it is complete, with a dataset card and the dataset's scale statistics (`scaling.SCALE_FILE`);
+only once it is complete, with a dataset card, the dataset's scale statistics (`scaling.SCALE_FILE`) and
+which of its clouds are in farthest-point order (`point_order.POINT_ORDER_FILE`);
 an error or an interrupt leaves any earlier dataset at the output path untouched. Episodes are validated
 whole before any frame is buffered, so a bad demo can be skipped without leaving a half-filled episode behind.
 """
@@ -20,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_taxdpd.data.point_order import is_farthest_point_ordered, write_point_order
 from lerobot_taxdpd.data.scaling import object_radius, write_scale_stats
-from lerobot_taxdpd.data.schema import OBJECT_KEY
+from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
 
 CARD_INFO_FILE = "meta/taxdpd_card.json"
 
@@ -78,6 +80,8 @@ class DatasetWriter:
         self.num_frames = 0
         self.skipped: list[SkippedItem] = []
         self._object_radii: list[float] = []  # one a frame: the dataset's scale statistics
+        # per cloud field the step reduces: every cloud so far in farthest-point order (checked until one is not)
+        self._fps_ordered = {key: True for key in (OBJECT_KEY, SCENE_KEY) if key in features}
         self._partial: Path | None = None
         self._dataset = None
         if self.root.exists() and not overwrite:
@@ -122,6 +126,8 @@ class DatasetWriter:
                 write_card_info(staged, self.card, self.skipped)
                 if self._object_radii:
                     write_scale_stats(staged, self._object_radii)
+                if self._fps_ordered:
+                    write_point_order(staged, self._fps_ordered)
                 write_dataset_card(staged, self.repo_id)
                 self._publish(staged)
         finally:
@@ -159,6 +165,8 @@ class DatasetWriter:
         if OBJECT_KEY in self.features:
             clouds = torch.from_numpy(np.stack([frame[OBJECT_KEY] for frame in frames])).double()
             self._object_radii += object_radius(clouds).tolist()
+        for key, ordered in self._fps_ordered.items():
+            self._fps_ordered[key] = ordered and all(is_farthest_point_ordered(frame[key]) for frame in frames)
         self.num_episodes += 1
         self.num_frames += len(frames)
 

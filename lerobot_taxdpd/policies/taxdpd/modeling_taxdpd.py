@@ -23,6 +23,7 @@ from huggingface_hub import ModelCard
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
+from lerobot_taxdpd.data.point_order import read_point_order
 from lerobot_taxdpd.data.scaling import estimate_point_scale, object_radius
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import (
@@ -229,6 +230,10 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         config.validate_features()
         if config.point_scale is None and dataset_meta is not None:
             config.point_scale = estimate_point_scale(dataset_meta.root, config.object_scale)
+        # Whether the training data's object and scene clouds are in FPS order (the dataset's metadata says so):
+        # their encoder layouts are then prefixes, with no FPS in the step. A property of the data, not saved.
+        recorded = read_point_order(dataset_meta.root) if dataset_meta is not None else {}
+        self.training_clouds_fps_ordered = (recorded.get(OBJECT_KEY, False), recorded.get(SCENE_KEY, False))
         self.model = TaxDPDModel(config)
         self._init_ema()
         if config.compile_mode is not None:
@@ -568,7 +573,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         self, object_points: Tensor, scene_points: Tensor, goal_points: Tensor
     ) -> tuple[Tensor, Tensor, Tensor, tuple[bool, bool], Tensor]:
         """The training batch's augmentations; last, each cloud larger than the network's point count reduced by
-        FPS, which leaves it in FPS order (the returned flags, for object and scene), so its layout is free.
+        FPS, which leaves it in FPS order (the returned flags, for object and scene), so its layout is free; a
+        cloud the dataset recorded in FPS order keeps it through the rigid augmentations, not through a cut.
         Also returns the scene before its reduction, where a local stage takes its local scene from."""
         config = self.config
         if config.z_rotation_augmentation:
@@ -587,7 +593,11 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         )
         if object_keep is not None:
             goal_points = gather_points(goal_points, object_keep)
-        fps_ordered = (object_keep is not None, scene_keep is not None)
+        object_recorded, scene_recorded = self.training_clouds_fps_ordered
+        fps_ordered = (
+            object_keep is not None or (object_recorded and config.object_occlusion_prob == 0),
+            scene_keep is not None or (scene_recorded and config.scene_occlusion_prob == 0),
+        )
         return model_object, model_scene, goal_points, fps_ordered, scene_points
 
     # ------------------------------------------------------------------------------ saving and loading
