@@ -66,8 +66,6 @@ def evaluate_choice(
     }
 
 
-
-
 def _evaluate_cloth_choice(
     goal_policy: str, scorer_path: str, seeds: range, num_samples: int, workers: int, reports: Path | None
 ) -> dict:
