@@ -28,7 +28,17 @@ def test_the_scorer_rule_executes_the_highest_scored_sample():
         executed_first(samples, "scorer", radius=0.02)
 
 
-def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options(tmp_path, capsys):
+@pytest.fixture
+def one_torch_thread():
+    """One torch thread in this process, as in each of the collector's worker processes (and under `make test`):
+    a matmul split over two threads rounds differently, and parallel shards must equal one process's to the bit."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options(tmp_path, capsys, one_torch_thread):
     folder = tmp_path / "collection"
     first = collect("mug_easyrack", "mug_easyrack", range(5000, 5001), folder, num_samples=3, shard_size=1)
     assert [p.name for p in first] == ["shard_005000_005000.npz"]
