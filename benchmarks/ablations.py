@@ -10,6 +10,12 @@ where it stopped.
     python benchmarks/ablations.py --jobs 2              # two runs at a time, one torch thread each
     python benchmarks/ablations.py --tasks insert_ssd --variants full   # any task, any subset of variants
     python benchmarks/ablations.py --report-only         # the table of whatever has finished so far
+
+At a recipe that places (the README's table): the CPU recipe with the task's own flags, on demonstrations
+already made by `sim pretrain` (the same seeds `generate` uses; link them to OUTPUT/TASK/data to reuse them):
+
+    python benchmarks/ablations.py --config taxdpd_cpu --steps 2000 --episodes 1000 --tasks mug_medrack \
+        --set frame_noise_std=0.3 --output results/ablations_cpu
 """
 
 from __future__ import annotations
@@ -76,8 +82,13 @@ def run_command(task: str, variant: str, args: argparse.Namespace) -> list[str]:
         "python", "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
         f"--episodes={args.episodes}", f"--trials={args.trials}", f"--num-samples={args.num_samples}",
         f"--dataset={work / 'data'}", f"--output={work / variant}",
-        *([f"--steps={args.steps}"] if args.steps else []), *VARIANTS[variant][1],
+        *([f"--steps={args.steps}"] if args.steps else []), *recipe_flags(args), *VARIANTS[variant][1],
     ]
+
+
+def recipe_flags(args: argparse.Namespace) -> list[str]:
+    """The `--set FIELD=VALUE` overrides as `lerobot-train` flags, given to every cell before its switch."""
+    return [f"--policy.{assignment}" for assignment in args.set]
 
 
 def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | None:
@@ -173,14 +184,17 @@ def markdown(rows: list[dict]) -> str:
 
 
 def summary_markdown(rows: list[dict]) -> str:
-    """One line a variant, one column a task: success and the paired WTA RMSE change, paper's success beside."""
+    """One line a variant, one column a task: success and the paired WTA RMSE change, paper's success beside;
+    variants ranked by their mean success over the tasks they ran."""
     tasks = list(dict.fromkeys(row["task"] for row in rows))
     paper_tasks = [task for task in tasks if task in PAPER]
     cells = {(row["task"], row["variant"]): row for row in rows}
     header = ["variant", *(f"{task}: success, WTA RMSE (paired change)" for task in tasks)]
     header += [f"paper {task}" for task in paper_tasks]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for variant in dict.fromkeys(row["variant"] for row in rows):
+    variants = list(dict.fromkeys(row["variant"] for row in rows))
+    mean_success = {v: np.mean([row["success_rate"] for row in rows if row["variant"] == v]) for v in variants}
+    for variant in sorted(variants, key=lambda v: -mean_success[v]):
         line = [f"{VARIANTS[variant][0]} (`{variant}`)"]
         for task in tasks:
             row = cells.get((task, variant))
@@ -208,6 +222,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--config", default="taxdpd_ablation", help="a shipped recipe name or a config file (default: taxdpd_ablation)"
     )
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
+    parser.add_argument(
+        "--set", nargs="*", default=[], metavar="FIELD=VALUE",
+        help="policy config fields for every cell, e.g. a task's recipe: --set frame_noise_std=0.3",
+    )
     parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
     parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")
     parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
@@ -216,7 +234,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--report-only", action="store_true", help="write the table from the finished runs, train nothing"
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    malformed = [assignment for assignment in args.set if "=" not in assignment or assignment.startswith("=")]
+    if malformed:
+        parser.error(f"--set: expected FIELD=VALUE, got {' '.join(malformed)}")
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -247,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     payload = {
         "machine": machine,
         "config": str(args.config),
+        "overrides": args.set,
         "jobs": args.jobs,
         "rows": rows,
         "failures": failures,

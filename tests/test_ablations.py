@@ -38,7 +38,7 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     args = [
         ROOT / "benchmarks" / "ablations.py", "--tasks", "book_shelf", "--variants", "full", "no_gmm", "--steps", "2",
         "--episodes", "4", "--trials", "2", "--num-samples", "2", "--config", tiny_config(tmp_path / "tiny.json"),
-        "--output", output,
+        "--output", output, "--set", "frame_noise_std=0.3",  # a task's recipe flag, given to every cell
     ]
     result = run(*args)
     assert result.returncode == 0, result.stderr[-4000:]
@@ -58,7 +58,8 @@ def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table
     assert (task / "data" / "meta" / "info.json").is_file() and not (task / "full" / "data").exists()
     for variant, use_gmm in (("full", True), ("no_gmm", False)):
         checkpoint = task / variant / "train" / "checkpoints" / "last" / "pretrained_model"
-        assert json.loads((checkpoint / "config.json").read_text())["use_gmm"] is use_gmm
+        config = json.loads((checkpoint / "config.json").read_text())
+        assert config["use_gmm"] is use_gmm and config["frame_noise_std"] == 0.3
         metrics = json.loads((task / variant / "metrics.json").read_text())
         assert ("--policy.use_gmm=false" in metrics["training_command"]) is not use_gmm
         gmm_maps = list((task / variant / "figures").glob("*_gmm.png"))
@@ -90,6 +91,11 @@ def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
         "-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false"
     )
     assert result.returncode == 2 and "unrecognized arguments: --policy.use_gmm=false" in result.stderr
+
+
+def test_ablation_overrides_must_name_a_field_and_a_value():
+    result = run(ROOT / "benchmarks" / "ablations.py", "--set", "frame_noise_std", "--report-only")
+    assert result.returncode == 2 and "--set: expected FIELD=VALUE, got frame_noise_std" in result.stderr
 
 
 def test_a_task_trains_with_its_own_flags_and_the_users_win():
