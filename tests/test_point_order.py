@@ -55,6 +55,9 @@ def test_the_order_check_accepts_fps_orders_ties_included_and_rejects_others():
     assert is_farthest_point_ordered(cloud)
     assert not is_farthest_point_ordered(cloud[rng.permutation(300)])
     assert not is_farthest_point_ordered(cloud[::-1])
+    # A render that comes at exactly the recorded size is put in FPS order too, not kept as it came.
+    whole = rng.normal(size=(300, 3))
+    assert is_farthest_point_ordered(fps_reduced(whole, 300)) and not is_farthest_point_ordered(whole)
     # A cube's corners: after the first two, every point ties with others; any order among ties is FPS's.
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
     first, opposite = corners[0], corners[7]

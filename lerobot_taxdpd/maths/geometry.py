@@ -132,7 +132,8 @@ def farthest_point_indices(points: ArrayLike, num_samples: int, start_index: int
     30-60k-point clouds of raw demos. Returns sorted-by-selection-order int64 indices, so the same
     indices can be applied to a corresponding cloud (start and goal rows stay paired). fpsample (1.0.2)
     does not start at `start_index` itself but at a point chosen deterministically from it: different
-    values still give different exact samplings, reproducibly.
+    values still give different exact samplings, reproducibly. Asked for every point, it still orders them: the
+    datasets record their clouds in FPS order (`lerobot_taxdpd.data.point_order`), whatever the render's size.
     """
     import fpsample
 
@@ -141,8 +142,6 @@ def farthest_point_indices(points: ArrayLike, num_samples: int, start_index: int
     n = array.shape[0]
     if num_samples > n:
         raise ValueError(f"points: cannot sample {num_samples} points from a cloud of {n}")
-    if num_samples == n:
-        return np.arange(n, dtype=np.int64)
     height = 3 if n < 5_000 else 7 if n < 100_000 else 9
     idx = fpsample.bucket_fps_kdline_sampling(array.astype(np.float32), num_samples, h=height, start_idx=start_index)
     return np.asarray(idx, dtype=np.int64)
