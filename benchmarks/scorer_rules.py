@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_taxdpd.data.schema import CLOTH_TASK
-from lerobot_taxdpd.maths.metrics import pairwise_rmse, success_summary
-from lerobot_taxdpd.maths.selection import consensus_index
+from lerobot_taxdpd.maths.metrics import success_summary
+from lerobot_taxdpd.maths.selection import agreement, consensus_index
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.scoring.collect import load_collection
 from lerobot_taxdpd.scoring.training import choice_rates, fit_scorer, score_scenes
@@ -49,7 +49,7 @@ def rule_choices(samples: np.ndarray, scores: np.ndarray, radius: float) -> dict
     """The index each rule executes, per scene."""
     choices = {"first": [], "consensus": [], "scorer": [], "consensus, ties by the scorer": []}
     for scene_samples, scene_scores in zip(samples, scores, strict=True):
-        neighbours = (pairwise_rmse(scene_samples, scene_samples) < radius).sum(1)
+        neighbours, _ = agreement(scene_samples, radius)
         most = np.flatnonzero(neighbours == neighbours.max())
         choices["first"].append(0)
         choices["consensus"].append(consensus_index(scene_samples, radius))

@@ -17,19 +17,23 @@ from lerobot_taxdpd.maths.metrics import pairwise_rmse
 GOAL_SELECTIONS = ("first", "consensus", "scorer")
 
 
-def consensus_index(samples: np.ndarray, radius: float) -> int:
-    """Index of the sample with the most other samples within `radius` RMSE of it; ties go to the one with
-    the smallest mean RMSE to the others, then to the earliest.
-
-    Point clouds are compared row by row: the samples of one predictor share the object's point order.
-    """
+def agreement(samples: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """For K samples (K, N, 3): how many other samples lie within `radius` RMSE of each (K,), and the pairwise
+    RMSEs (K, K). Point clouds are compared row by row: the samples of one predictor share the object's
+    point order."""
     samples = np.asarray(samples, dtype=np.float64)
     if samples.ndim != 3 or samples.shape[0] < 1:
         raise ValueError(f"samples: expected (K, N, 3) with K >= 1, got shape {samples.shape}")
     if radius <= 0:
         raise ValueError(f"radius: must be positive, got {radius}")
     rmse = pairwise_rmse(samples, samples)
-    neighbours = (rmse < radius).sum(1) - 1
+    return (rmse < radius).sum(1) - 1, rmse
+
+
+def consensus_index(samples: np.ndarray, radius: float) -> int:
+    """Index of the sample with the most other samples within `radius` RMSE of it; ties go to the one with
+    the smallest mean RMSE to the others, then to the earliest."""
+    neighbours, rmse = agreement(samples, radius)
     total_rmse = rmse.sum(1)  # orders the samples as their mean RMSE to the others does
     return int(np.lexsort((np.arange(len(samples)), total_rmse, -neighbours))[0])
 
