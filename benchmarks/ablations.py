@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -35,6 +34,7 @@ from lerobot_taxdpd.maths.metrics import paired_difference
 from lerobot_taxdpd.recipes import run
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import task_names
+from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 #: Variant -> (the paper's ablation row, lerobot-train flags); the flags are explained in docs/taxdpd.md.
 VARIANTS: dict[str, tuple[str, list[str]]] = {
@@ -231,6 +231,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--num-samples", type=int, default=10, help="K goals per trial (default: 10)")
     parser.add_argument("--jobs", type=int, default=1, help="runs at the same time (default: 1)")
     parser.add_argument("--output", type=Path, default=Path("results/ablations"))
+    add_threads_argument(parser)  # per run
     parser.add_argument(
         "--report-only", action="store_true", help="write the table from the finished runs, train nothing"
     )
@@ -243,7 +244,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    threads = max(1, (os.cpu_count() or 1) // args.jobs)
+    threads = configure_threads(args.threads)
     started = time.perf_counter()
     # variant-major order: an interrupted table still has every task for the variants it reached
     jobs = [(task, variant) for variant in args.variants for task in args.tasks]
