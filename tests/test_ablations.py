@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -91,6 +92,23 @@ def test_pretrain_passes_only_policy_flags_on_to_lerobot_train():
         "-m", "lerobot_taxdpd.sim", "eval", "--task", "book_shelf", "--predictor", "oracle", "--policy.use_gmm=false"
     )
     assert result.returncode == 2 and "unrecognized arguments: --policy.use_gmm=false" in result.stderr
+
+
+def test_the_summary_ranks_variants_by_their_success():
+    spec = importlib.util.spec_from_file_location("ablations", ROOT / "benchmarks" / "ablations.py")
+    ablations = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ablations)
+
+    def row(variant: str, success: float) -> dict:
+        versus = None if variant == "full" else {"mean_mm": 1.0, "ci95_mm": [0.5, 1.5]}
+        return {
+            "task": "mug_medrack", "variant": variant, "success_rate": success, "success_ci95": [0.0, 1.0],
+            "winner_take_all_rmse_mm": 8.0, "winner_take_all_rmse_vs_full": versus,
+        }
+
+    table = ablations.summary_markdown([row("full", 0.66), row("tax3d_style", 0.0), row("no_gmm", 0.7)])
+    ranked = [line.split(" (`")[1].split("`")[0] for line in table.splitlines()[2:]]
+    assert ranked == ["no_gmm", "full", "tax3d_style"]
 
 
 def test_ablation_overrides_must_name_a_field_and_a_value():
