@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_taxdpd.maths.metrics import paired_difference
-from lerobot_taxdpd.recipes import run
+from lerobot_taxdpd.recipes import add_policy_overrides_argument, policy_flags, run
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.tasks import task_names
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
@@ -82,13 +82,9 @@ def run_command(task: str, variant: str, args: argparse.Namespace) -> list[str]:
         "python", "-m", "lerobot_taxdpd.sim", "pretrain", f"--task={task}", f"--config={args.config}",
         f"--episodes={args.episodes}", f"--trials={args.trials}", f"--num-samples={args.num_samples}",
         f"--dataset={work / 'data'}", f"--output={work / variant}",
-        *([f"--steps={args.steps}"] if args.steps else []), *recipe_flags(args), *VARIANTS[variant][1],
+        *([f"--steps={args.steps}"] if args.steps else []), *policy_flags(args.set), *VARIANTS[variant][1],
     ]
 
-
-def recipe_flags(args: argparse.Namespace) -> list[str]:
-    """The `--set FIELD=VALUE` overrides as `lerobot-train` flags, given to every cell before its switch."""
-    return [f"--policy.{assignment}" for assignment in args.set]
 
 
 def generate_data(task: str, args: argparse.Namespace, threads: int) -> str | None:
@@ -222,9 +218,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--config", default="taxdpd_ablation", help="a shipped recipe name or a config file (default: taxdpd_ablation)"
     )
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
-    parser.add_argument(
-        "--set", nargs="*", default=[], metavar="FIELD=VALUE",
-        help="policy config fields for every cell, e.g. a task's recipe: --set frame_noise_std=0.3",
+    add_policy_overrides_argument(
+        parser, "policy config fields for every cell (before its switch), e.g. a task's recipe: frame_noise_std=0.3"
     )
     parser.add_argument("--episodes", type=int, default=200, help="demonstrations per task (default: 200)")
     parser.add_argument("--trials", type=int, default=100, help="held-out trials per run (default: 100)")
@@ -235,11 +230,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--report-only", action="store_true", help="write the table from the finished runs, train nothing"
     )
-    args = parser.parse_args(argv)
-    malformed = [assignment for assignment in args.set if "=" not in assignment or assignment.startswith("=")]
-    if malformed:
-        parser.error(f"--set: expected FIELD=VALUE, got {' '.join(malformed)}")
-    return args
+    return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:

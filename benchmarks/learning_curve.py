@@ -37,7 +37,14 @@ from lerobot_taxdpd.apps.synthetic import (
 )
 from lerobot_taxdpd.goal_predictors import load_goal_predictor
 from lerobot_taxdpd.maths.equivariance import goal_turn_response
-from lerobot_taxdpd.recipes import portable_train_command, recipe_path, run, train_command
+from lerobot_taxdpd.recipes import (
+    add_policy_overrides_argument,
+    policy_flags,
+    portable_train_command,
+    recipe_path,
+    run,
+    train_command,
+)
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.pretrain import TRAIN_SECONDS_FILE
 
@@ -155,7 +162,7 @@ def train(args) -> tuple[Path, list[str], dict]:
     if run_dir.exists():
         shutil.rmtree(run_dir)
     flags = (
-        [f"--policy.{token}" for token in args.set]
+        policy_flags(args.set)
         + [
             f"--steps={args.steps}",
             f"--save_freq={args.save_every}",
@@ -191,9 +198,7 @@ def main() -> None:
     parser.add_argument("--dataset", type=Path, default=None, help="an existing dataset (default: made in --work-dir)")
     parser.add_argument("--episodes", type=int, default=200, help="demos to generate when there is no dataset")
     parser.add_argument("--recipe", default="taxdpd_cpu")
-    parser.add_argument(
-        "--set", nargs="*", default=[], metavar="FIELD=VALUE", help="policy overrides, e.g. hidden_dim=64"
-    )
+    add_policy_overrides_argument(parser, "policy overrides, e.g. hidden_dim=64")
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--save-every", type=int, default=500)
     parser.add_argument("--batch-size", type=int, default=None)

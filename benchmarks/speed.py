@@ -48,7 +48,7 @@ from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_indices
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import PointMLPEncoder, PointNet2Encoder
-from lerobot_taxdpd.recipes import recipe_path
+from lerobot_taxdpd.recipes import add_policy_overrides_argument, recipe_path
 from lerobot_taxdpd.reports.benchmarking import machine_info, timed, write_json
 from lerobot_taxdpd.reports.launches import LaunchCounter
 
@@ -310,7 +310,7 @@ def parse_overrides(tokens: list[str]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--models", default="cpu,paper", help="cpu (the shipped CPU recipe) and/or paper")
-    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="TaxDPDConfig overrides")
+    add_policy_overrides_argument(parser, "TaxDPDConfig overrides")
     parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--train-steps", type=int, default=40, help="lerobot-train steps timed (0: skip)")

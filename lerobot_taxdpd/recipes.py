@@ -52,6 +52,25 @@ def recipe_path(name_or_path: str | Path) -> Path:
     )
 
 
+def _policy_assignment(text: str) -> str:
+    """One `--set` item, checked where it is parsed: `FIELD=VALUE`."""
+    if "=" not in text or text.startswith("="):
+        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text}")
+    return text
+
+
+def add_policy_overrides_argument(parser: argparse.ArgumentParser, description: str) -> None:
+    """The `--set FIELD=VALUE ...` option the benchmarks share: policy config fields over a recipe's."""
+    parser.add_argument(
+        "--set", nargs="*", default=[], type=_policy_assignment, metavar="FIELD=VALUE", help=description
+    )
+
+
+def policy_flags(assignments: Sequence[str]) -> list[str]:
+    """`--set` items as `lerobot-train` flags (`--policy.FIELD=VALUE`)."""
+    return [f"--policy.{assignment}" for assignment in assignments]
+
+
 def train_command(
     dataset: Path, repo_id: str, output_dir: Path, *, recipe: Path | str | None = None, flags: Sequence[str] = ()
 ) -> list[str]:
