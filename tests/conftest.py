@@ -6,6 +6,7 @@ is inherited by the CLI subprocesses the tests start (`lerobot-train`, converter
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -37,6 +38,7 @@ TINY_TAXDPD = [
     "--policy.num_inference_steps=2",
     "--policy.device=cpu",
 ]
+
 #: The same for gc_dp3.
 TINY_GC_DP3 = [
     "--policy.type=gc_dp3",
@@ -49,6 +51,18 @@ TINY_GC_DP3 = [
     "--policy.optimizer_lr=1e-3",
     "--policy.device=cpu",
 ]
+
+
+def tiny_taxdpd_recipe(path: Path) -> Path:
+    """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
+    root = Path(__file__).resolve().parents[1]
+    config = json.loads((root / "lerobot_taxdpd" / "configs" / "taxdpd_ablation.json").read_text())
+    for flag in TINY_TAXDPD:
+        field, value = flag.removeprefix("--policy.").split("=")
+        config["policy"][field] = value if field == "device" else int(value)
+    config["policy"].update(num_object_points=32, num_scene_points=64)
+    path.write_text(json.dumps(config))
+    return path
 
 
 def run_cli(name: str, *args: str, timeout: float = 600, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -10,23 +10,12 @@ from pathlib import Path
 
 import draccus
 
-from conftest import TINY_TAXDPD
+from conftest import tiny_taxdpd_recipe
 from lerobot_taxdpd import TaxDPDConfig
 from lerobot_taxdpd.sim.pretrain import training_flags
 from lerobot_taxdpd.sim.tasks import get_task
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def tiny_config(path: Path) -> Path:
-    """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
-    config = json.loads((ROOT / "lerobot_taxdpd" / "configs" / "taxdpd_ablation.json").read_text())
-    for flag in TINY_TAXDPD:
-        field, value = flag.removeprefix("--policy.").split("=")
-        config["policy"][field] = value if field == "device" else int(value)
-    config["policy"].update(num_object_points=32, num_scene_points=64)
-    path.write_text(json.dumps(config))
-    return path
 
 
 def run(*args: str | Path) -> subprocess.CompletedProcess:
@@ -36,9 +25,10 @@ def run(*args: str | Path) -> subprocess.CompletedProcess:
 
 def test_ablation_runner_trains_each_switch_on_shared_demos_and_writes_the_table(tmp_path):
     output = tmp_path / "ablations"
+    recipe = tiny_taxdpd_recipe(tmp_path / "tiny.json")
     args = [
         ROOT / "benchmarks" / "ablations.py", "--tasks", "book_shelf", "--variants", "full", "no_gmm", "--steps", "2",
-        "--episodes", "4", "--trials", "2", "--num-samples", "2", "--config", tiny_config(tmp_path / "tiny.json"),
+        "--episodes", "4", "--trials", "2", "--num-samples", "2", "--config", recipe,
         "--output", output, "--set", "frame_noise_std=0.3",  # a task's recipe flag, given to every cell
     ]
     result = run(*args)

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from conftest import tiny_taxdpd_recipe
 from lerobot_taxdpd.goal_predictors import list_goal_predictors, resolve_goal_predictor
 from lerobot_taxdpd.recipes import portable_train_command, recipe_path
 from lerobot_taxdpd.sim.cli import main
 from lerobot_taxdpd.sim.generate import generate_dataset
-from lerobot_taxdpd.sim.pretrain import portable_commands, prepare_demonstrations, training_flags
+from lerobot_taxdpd.sim.pretrain import portable_commands, prepare_demonstrations, trained_steps, training_flags
 from lerobot_taxdpd.sim.tasks import get_task
 
 TASK = "book_shelf"
@@ -91,3 +92,39 @@ def test_a_finished_runs_saved_config_gives_back_its_recipe_and_flags(recipe, re
     assert command.startswith(f"lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path {recipe}) ")
     assert f"--dataset.repo_id={repo_id}" in command and "/home/someone" not in command
     assert [word for word in command.split() if word.startswith(("--policy.", "--steps", "--seed"))] == flags
+
+
+def test_a_finished_run_trains_on_in_a_second_leg_and_ships_with_both_commands(tmp_path, capsys):
+    """`--resume-steps` trains the run on from its last checkpoint (a long recipe in legs), records both legs'
+    commands, and a later rerun must name the leg: a resumed run is never evaluated as the first leg alone."""
+    from safetensors.torch import load_file
+
+    recipe = tiny_taxdpd_recipe(tmp_path / "tiny.json")
+    output = tmp_path / "run"
+    first = ["pretrain", "--task", TASK, "--config", str(recipe), "--steps", "2", "--episodes", "2", "--trials", "2"]
+    first += ["--num-samples", "2", "--output", str(output)]
+    checkpoint = output / "train" / "checkpoints" / "last" / "pretrained_model"
+    assert main([*first, "--resume-steps", "2"]) == 1  # refused before anything is made
+    assert "--resume-steps 2: must be more than the first leg's 2 steps" in capsys.readouterr().err
+    assert not output.exists()
+
+    assert main(first) == 0
+    first_leg = load_file(checkpoint / "model.safetensors")
+    assert main([*first, "--resume-steps", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "reusing the checkpoint" in out and "lerobot-train --resume=true --steps=4" in out
+    assert trained_steps(checkpoint) == 4
+    assert any((load_file(checkpoint / "model.safetensors")[k] != v).any() for k, v in first_leg.items())
+    metrics = json.loads((output / "metrics.json").read_text())
+    assert metrics["training_steps"] == 4
+    train, leg = metrics["training_command"].split(" && ")
+    assert "--steps=2" in train and leg == (
+        f"lerobot-train --resume=true --steps=4 --config_path=outputs/train/{TASK}/checkpoints/last/pretrained_model/"
+        "train_config.json"
+    )
+
+    assert main(first) == 1  # the run holds 4 steps now: evaluating it as the 2-step recipe would mislabel it
+    error = capsys.readouterr().err
+    assert "resumed to 4 steps" in error and "--resume-steps 4" in error
+    assert main([*first, "--resume-steps", "4"]) == 0  # the same legs: reused, nothing trains
+    assert "reusing the run resumed to 4 steps" in capsys.readouterr().out

@@ -192,6 +192,13 @@ def build_parser() -> argparse.ArgumentParser:
     pretrain.add_argument("--episodes", type=int, default=200, help="training demonstrations (default: 200)")
     pretrain.add_argument("--steps", type=int, default=None, help="training steps (default: the config's)")
     pretrain.add_argument(
+        "--resume-steps",
+        type=int,
+        default=None,
+        help="then train on to this many steps in a second leg (lerobot-train --resume=true): a long recipe in "
+        "legs that each fit a session; a rerun with the same flags goes on from the last checkpoint",
+    )
+    pretrain.add_argument(
         "--config", default=None, help="a shipped recipe name or a lerobot-train config file (default: taxdpd_cpu)"
     )
     pretrain.add_argument("--trials", type=int, default=100, help="held-out evaluation trials (default: 100)")
@@ -238,6 +245,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         dataset=args.dataset,
         overrides=overrides,
         overwrite=args.overwrite,
+        resume_steps=args.resume_steps,
     )
     return 0
 

@@ -8,7 +8,8 @@ recipe `taxdpd_cpu` (or any recipe name or config file given), the evaluation ha
 then the checkpoint with its measured metrics (task, training command and budget, held-out success and
 errors) saved as a shipped predictor when `--ship` names a folder. A rerun reuses the demonstrations and
 the checkpoint in place, and says so, only when they were made with the same options and training command;
-otherwise it refuses, and `--overwrite` makes them afresh.
+otherwise it refuses, and `--overwrite` makes them afresh. `--resume-steps N` trains the finished run on to N
+steps in a second leg (`lerobot-train --resume=true`), so a long recipe runs in legs that each fit a session.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from lerobot_taxdpd.sim.trials import make_trial
 CPU_RECIPE = "taxdpd_cpu"
 TRAIN_COMMAND_FILE = "train_command.txt"
 TRAIN_SECONDS_FILE = "train_seconds.txt"  # kept beside it, so a rerun that ships the same checkpoint reports it
+RESUME_COMMAND_FILE = "resume_command.txt"  # the second leg's command and seconds, when the run went on
+RESUME_SECONDS_FILE = "resume_seconds.txt"
 
 
 def _relative(path: Path) -> Path:
@@ -76,6 +79,7 @@ def pretrain(
     dataset: Path | None = None,
     overrides: Sequence[str] = (),
     overwrite: bool = False,
+    resume_steps: int | None = None,
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
@@ -83,7 +87,8 @@ def pretrain(
     `overrides`, extra lerobot-train flags (`--policy.<field>=<value>`, `--seed=<n>`) that win over both.
     `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
     demonstrations; it is generated only if it does not exist yet. What a rerun finds in place is reused
-    only when made with the same options, and refused otherwise; `overwrite` makes both afresh.
+    only when made with the same options, and refused otherwise; `overwrite` makes both afresh. `resume_steps`
+    trains the finished run on to that many steps in a second leg (see `resume_once`).
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
@@ -93,11 +98,22 @@ def pretrain(
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
     flags = training_flags(task, steps, overrides)
+    first_leg = steps or json.loads(config_path.read_text())["steps"]
+    if resume_steps is not None and resume_steps <= first_leg:
+        raise ValueError(f"--resume-steps {resume_steps}: must be more than the first leg's {first_leg} steps")
     portable_generate, portable_train = portable_commands(task, episodes, config_path, flags)
     prepare_demonstrations(task, dataset, repo_id, episodes, portable_generate, overwrite=overwrite)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
+    if overwrite:  # a second leg belongs to the run that is replaced
+        for name in (RESUME_COMMAND_FILE, RESUME_SECONDS_FILE):
+            (output / name).unlink(missing_ok=True)
     train_seconds = train_once(command, output, run_dir, overwrite=overwrite)
+    leg_seconds = resume_once(checkpoint, output, resume_steps)
+    if leg_seconds is not None and train_seconds is not None:
+        train_seconds += leg_seconds
+    if resume_steps is not None:
+        portable_train += f" && {shlex.join(resume_command(Path('outputs/train') / task.name, resume_steps))}"
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
     if destination is not None:  # evaluate exactly what ships (half-precision weights)
@@ -202,6 +218,44 @@ def train_once(command: list[str], output: Path, run_dir: Path, *, overwrite: bo
     train_seconds = run(command)
     timing.write_text(f"{train_seconds}\n")
     return train_seconds
+
+
+def resume_command(run_dir: Path, steps: int) -> list[str]:
+    """The `lerobot-train` command that trains the run in `run_dir` on to `steps` steps from its last checkpoint
+    (its optimizer, scheduler and data order restored; the recipe's cosine then spans the longer run)."""
+    config = run_dir / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    return ["lerobot-train", "--resume=true", f"--steps={steps}", f"--config_path={config}"]
+
+
+def trained_steps(checkpoint: Path) -> int:
+    """The steps the run had trained when it saved `checkpoint` (a `pretrained_model` folder)."""
+    return int(json.loads((checkpoint.parent / "training_state" / "training_step.json").read_text())["step"])
+
+
+def resume_once(checkpoint: Path, output: Path, steps: int | None) -> float | None:
+    """Train the run whose last checkpoint is `checkpoint` on to `steps` steps, unless it has them already; the
+    leg's seconds (None when nothing ran and none were recorded). A leg cut short goes on from its last
+    checkpoint when rerun. A resumed run is not evaluated as if it had one leg: without the `steps` it was
+    resumed to, it is refused.
+    """
+    recorded, timing = output / RESUME_COMMAND_FILE, output / RESUME_SECONDS_FILE
+    trained = trained_steps(checkpoint)
+    if recorded.is_file() and steps != trained:
+        raise ValueError(
+            f"--output {output}: holds a run resumed to {trained} steps ({recorded.read_text()}); rerun with "
+            f"--resume-steps {trained} to reuse it, or add --overwrite to retrain there"
+        )
+    if steps is None:
+        return None
+    if recorded.is_file():
+        print(f"[2/4] reusing the run resumed to {steps} steps", flush=True)
+        return float(timing.read_text()) if timing.is_file() else None
+    command = resume_command(_relative(checkpoint.parents[2]), steps)
+    print(f"[2/4] {shlex.join(command)}", flush=True)
+    seconds = run(command)
+    recorded.write_text(shlex.join(command))
+    timing.write_text(f"{seconds}\n")
+    return seconds
 
 
 def orientation_checks(policy, task, trials: list) -> dict:
