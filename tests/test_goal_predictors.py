@@ -4,6 +4,7 @@ errors a user sees for anything else."""
 from __future__ import annotations
 
 import json
+import re
 import warnings
 
 import pytest
@@ -99,9 +100,15 @@ def test_one_shipped_name_gives_the_goal_predictor_and_its_executor(tmp_path, mo
 
 
 def _portable(command: str) -> bool:
-    """A card's training command runs on any machine: a shipped recipe by name, no folder of the training run."""
-    return command.startswith("lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path ") and (
-        "checkpoints/" not in command
+    """A card's training command runs on any machine: a shipped recipe by name, no folder of the training run;
+    a second leg resumes the checkpoint that the first one writes, under its relative output folder."""
+    first, *legs = command.split(" && ")
+    output = re.search(r"--output_dir=(\S+)", first)
+    resumed = f"--config_path={output and output.group(1)}/checkpoints/last/pretrained_model/train_config.json"
+    return (
+        first.startswith("lerobot-train --config_path=$(python -m lerobot_taxdpd.recipes path ")
+        and "checkpoints/" not in first
+        and all(re.fullmatch(rf"lerobot-train --resume=true --steps=\d+ {re.escape(resumed)}", leg) for leg in legs)
     )
 
 
