@@ -101,7 +101,7 @@ def pretrain(
     first_leg = steps or json.loads(config_path.read_text())["steps"]
     if resume_steps is not None and resume_steps <= first_leg:
         raise ValueError(f"--resume-steps {resume_steps}: must be more than the first leg's {first_leg} steps")
-    portable_generate, portable_train = portable_commands(task, episodes, config_path, flags)
+    portable_generate, portable_train = portable_commands(task, episodes, config_path, flags, resume_steps)
     prepare_demonstrations(task, dataset, repo_id, episodes, portable_generate, overwrite=overwrite)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
@@ -112,8 +112,6 @@ def pretrain(
     leg_seconds = resume_once(checkpoint, output, resume_steps)
     if leg_seconds is not None and train_seconds is not None:
         train_seconds += leg_seconds
-    if resume_steps is not None:
-        portable_train += f" && {shlex.join(resume_command(Path('outputs/train') / task.name, resume_steps))}"
     policy = load_goal_predictor(checkpoint)
     destination = Path(ship) / task.name if ship is not None else None
     if destination is not None:  # evaluate exactly what ships (half-precision weights)
@@ -152,20 +150,25 @@ def pretrain(
     return metrics
 
 
-def portable_commands(task, episodes: int, config_path: Path, flags: Sequence[str]) -> tuple[str, str]:
+def portable_commands(
+    task, episodes: int, config_path: Path, flags: Sequence[str], resume_steps: int | None = None
+) -> tuple[str, str]:
     """The generate and train commands as metrics and cards record them: runnable on any machine, one after
     the other (folders under the working directory, a shipped recipe by name), not the folders of the
-    machine that trained."""
-    data, repo_id = f"data/{task.name}", f"local/{task.name}"
+    machine that trained; with `resume_steps`, the train command's second leg after `&&`."""
+    data, repo_id, run_dir = f"data/{task.name}", f"local/{task.name}", Path("outputs/train") / task.name
     generate = shlex.join(
         ["python", "-m", "lerobot_taxdpd.sim", "generate", "--task", task.name, "--episodes", str(episodes),
          "--split", "train", "--repo-id", repo_id, "--root", data]
     )  # fmt: skip
-    train = shlex.join(train_command(Path(data), repo_id, Path("outputs/train") / task.name, flags=flags))
+    train = shlex.join(train_command(Path(data), repo_id, run_dir, flags=flags))
     recipe = shlex.quote(str(_relative(config_path)))
     if config_path.resolve().parent == RECIPE_DIR.resolve():  # found on any install by its name
         recipe = f"$(python -m lerobot_taxdpd.recipes path {config_path.stem})"
-    return generate, train.replace("lerobot-train ", f"lerobot-train --config_path={recipe} ", 1)
+    train = train.replace("lerobot-train ", f"lerobot-train --config_path={recipe} ", 1)
+    if resume_steps is not None:
+        train += f" && {shlex.join(resume_command(run_dir, resume_steps))}"
+    return generate, train
 
 
 def prepare_demonstrations(task, dataset: Path, repo_id: str, episodes: int, command: str, *, overwrite: bool) -> None:
@@ -239,17 +242,17 @@ def resume_once(checkpoint: Path, output: Path, steps: int | None) -> float | No
     resumed to, it is refused.
     """
     recorded, timing = output / RESUME_COMMAND_FILE, output / RESUME_SECONDS_FILE
-    trained = trained_steps(checkpoint)
-    if recorded.is_file() and steps != trained:
-        raise ValueError(
-            f"--output {output}: holds a run resumed to {trained} steps ({recorded.read_text()}); rerun with "
-            f"--resume-steps {trained} to reuse it, or add --overwrite to retrain there"
-        )
-    if steps is None:
-        return None
     if recorded.is_file():
+        trained = trained_steps(checkpoint)
+        if steps != trained:
+            raise ValueError(
+                f"--output {output}: holds a run resumed to {trained} steps ({recorded.read_text()}); rerun with "
+                f"--resume-steps {trained} to reuse it, or add --overwrite to retrain there"
+            )
         print(f"[2/4] reusing the run resumed to {steps} steps", flush=True)
         return float(timing.read_text()) if timing.is_file() else None
+    if steps is None:
+        return None
     command = resume_command(_relative(checkpoint.parents[2]), steps)
     print(f"[2/4] {shlex.join(command)}", flush=True)
     seconds = run(command)
