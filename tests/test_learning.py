@@ -39,18 +39,11 @@ RECIPE = [
 # this project's 2-core machine: 10.0 deg after the CI run's 2000 steps with 16 neighbours a ball (9.8-10.2 deg
 # with 32, which cost the CI run more time), 4.1 deg after the slow run's 5000 with 32.
 BUDGETS = {
-    "ci": dict(
-        steps=2000,
-        neighbors=16,
-        max_rotation_deg=15.0,
-        max_translation_mm=10.0,
-        min_coverage=0.6,
-        max_turn_error_deg=5.0,
-    ),
-    "slow": dict(
-        steps=5000, neighbors=32, max_rotation_deg=5.0, max_translation_mm=6.0, min_coverage=0.8, max_turn_error_deg=3.0
-    ),
-}
+    "ci": dict(steps=2000, neighbors=16, max_rotation_deg=15.0, max_translation_mm=10.0, min_coverage=0.6,
+               max_turn_error_deg=5.0),
+    "slow": dict(steps=5000, neighbors=32, max_rotation_deg=5.0, max_translation_mm=6.0, min_coverage=0.8,
+                 max_turn_error_deg=3.0),
+}  # fmt: skip
 
 
 def train_and_check(cli, tmp_path, budget: str) -> None:
