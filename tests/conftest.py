@@ -38,7 +38,6 @@ TINY_TAXDPD = [
     "--policy.num_inference_steps=2",
     "--policy.device=cpu",
 ]
-
 #: The same for gc_dp3.
 TINY_GC_DP3 = [
     "--policy.type=gc_dp3",
@@ -55,8 +54,9 @@ TINY_GC_DP3 = [
 
 def tiny_taxdpd_recipe(path: Path) -> Path:
     """The ablation recipe shrunk to seconds: the same file layout, a model a few kB large."""
-    root = Path(__file__).resolve().parents[1]
-    config = json.loads((root / "lerobot_taxdpd" / "configs" / "taxdpd_ablation.json").read_text())
+    from lerobot_taxdpd.recipes import recipe_path  # not at import: the environment above is set first
+
+    config = json.loads(recipe_path("taxdpd_ablation").read_text())
     for flag in TINY_TAXDPD:
         field, value = flag.removeprefix("--policy.").split("=")
         config["policy"][field] = value if field == "device" else int(value)
