@@ -65,6 +65,7 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
     from scratch (the pretrain pipeline evaluates it)."""
     from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer, shipped_scorers
     from lerobot_taxdpd.sim.harness import evaluate
+    from lerobot_taxdpd.sim.predictors import observed_as_trained
     from lerobot_taxdpd.sim.pretrain import CPU_RECIPE, pretrain
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
@@ -83,11 +84,12 @@ def run_task(task_name: str, args: argparse.Namespace) -> tuple[dict, Path]:
         )
         path = work / f"{task_name}_eval.json"
         return json.loads(path.read_text()), path
-    task = get_task(task_name)
+    predictor = load_goal_predictor(task_name)
+    task = observed_as_trained(get_task(task_name), predictor)
     trials = (make_trial(task, seed, "test") for seed in range(args.trials))
     scorer = load_scorer(task_name) if task_name in shipped_scorers() else None
     report = evaluate(
-        load_goal_predictor(task_name),
+        predictor,
         trials,
         args.num_samples,
         goal_selection="scorer" if scorer is not None else "first",

@@ -149,10 +149,12 @@ def _row(seed: int, scene, obj, samples, success, rmse) -> dict[str, np.ndarray]
 def _rigid_labeller(task_name: str, source: str, num_samples: int) -> Callable[[int], dict[str, np.ndarray]]:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.sim.harness import sample_trial_goals
+    from lerobot_taxdpd.sim.predictors import observed_as_trained
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
-    task, predictor = get_task(task_name), load_goal_predictor(source)
+    predictor = load_goal_predictor(source)
+    task = observed_as_trained(get_task(task_name), predictor)
 
     def label(seed: int) -> dict[str, np.ndarray]:
         trial = make_trial(task, seed, "train")

@@ -40,11 +40,12 @@ def evaluate_choice(
         return _evaluate_cloth_choice(goal_policy, scorer_path, seeds, num_samples, workers, reports)
     from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer
     from lerobot_taxdpd.sim.harness import evaluate
+    from lerobot_taxdpd.sim.predictors import observed_as_trained
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
-    task = get_task(task_name)
     predictor, scorer = load_goal_predictor(goal_policy), load_scorer(scorer_path)
+    task = observed_as_trained(get_task(task_name), predictor)
     trials = [make_trial(task, seed, "test") for seed in seeds]
     first = evaluate(predictor, trials, num_samples, goal_selection="first")
     chosen = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=scorer)

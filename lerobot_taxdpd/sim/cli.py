@@ -32,11 +32,11 @@ RIGID_ONLY = {
     "placement_frames": "--placement-frames",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
+    "observed_scene_cloud_size": "--scene-cloud-size",
 }
 CLOTH_ONLY = {
     "dataset": "--dataset",
     "object_cloud_size": "--object-cloud-size",
-    "scene_cloud_size": "--scene-cloud-size",
     "workers": "--workers",
     "action_noise": "--action-noise",
     "ground_truth_goals": "--ground-truth-goals",
@@ -70,6 +70,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="observations of each demonstration, >= 2 (default: 2; cloth_hang: 4 point samplings)",
     )
     add_deprecated_alias(generate, "--views", "--frames-per-episode", "frames_per_episode", type=int)
+    generate.add_argument(
+        "--scene-cloud-size",
+        type=int,
+        default=None,
+        help="scene points stored per frame (default: the paper's count of the task, e.g. 1024 for book_shelf; "
+        "cloth_hang: 512 hanger points); a denser recording gives --policy.local_scene_points a finer crop",
+    )
     generate.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root, atomically")
     add_threads_argument(generate)
     cloth = generate.add_argument_group("cloth_hang only")
@@ -82,9 +89,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cloth.add_argument(
         "--object-cloud-size", type=int, default=None, help="cloth points stored per frame (default: 512)"
-    )
-    cloth.add_argument(
-        "--scene-cloud-size", type=int, default=None, help="hanger points stored per frame (default: 512)"
     )
     cloth.add_argument("--workers", type=int, default=None, help="parallel simulation processes (default: 1)")
     cloth.add_argument(
@@ -145,6 +149,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="--goal-policy.path only: 'true' samples every goal at the true placement frame (the demonstrated "
         "goal's centroid) instead of the Dense GMM's, to measure the local stage alone (default: the GMM's)",
+    )
+    rigid.add_argument(
+        "--scene-cloud-size",
+        dest="observed_scene_cloud_size",
+        type=int,
+        default=None,
+        help="scene points observed per trial (default: what --goal-policy.path was trained on, else the task's)",
     )
     rigid.add_argument("--oracle-error-mm", type=float, default=None, help="oracle only: translation error to add")
     rigid.add_argument("--oracle-error-deg", type=float, default=None, help="oracle only: rotation error to add")
@@ -217,6 +228,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="make new demonstrations and retrain, replacing those in place (default: reuse them only when made "
         "with the same options and training command, refuse otherwise)",
     )
+    pretrain.add_argument(
+        "--scene-cloud-size",
+        type=int,
+        default=None,
+        help="scene points recorded per demonstration and observed per held-out trial (default: the task's)",
+    )
     add_threads_argument(pretrain)
     return parser
 
@@ -246,6 +263,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         overrides=overrides,
         overwrite=args.overwrite,
         resume_steps=args.resume_steps,
+        scene_cloud_size=args.scene_cloud_size,
     )
     return 0
 
@@ -277,7 +295,7 @@ def _generate(args: argparse.Namespace, command: str) -> int:
     from lerobot_taxdpd.sim.tasks import get_task
 
     root = generate_dataset(
-        get_task(args.task),
+        get_task(args.task).with_scene_cloud_size(args.scene_cloud_size),
         episodes=args.episodes,
         split=args.split,
         repo_id=args.repo_id,
@@ -421,7 +439,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.reports.benchmarking import write_json
     from lerobot_taxdpd.sim.harness import evaluate
-    from lerobot_taxdpd.sim.predictors import OraclePredictor, TrueFramePredictor, load_predictor
+    from lerobot_taxdpd.sim.predictors import OraclePredictor, TrueFramePredictor, load_predictor, observed_as_trained
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
@@ -438,12 +456,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
     if args.placement_frames and not goal_policy_path:
         raise ValueError("--placement-frames: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
-    trials = (make_trial(task, seed, args.split) for seed in seeds)
-    if oracle or args.placement_frames:  # both answer from the trials' ground truth, so they need them first
-        trials = list(trials)
-    if oracle:
-        predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
-    elif goal_policy_path:
+    if goal_policy_path:
         try:
             predictor = load_goal_predictor(goal_policy_path, device=args.device)
         except (OSError, ValueError) as error:
@@ -451,9 +464,16 @@ def _evaluate(args: argparse.Namespace) -> int:
                 f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
         _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
-        if args.placement_frames:
-            predictor = TrueFramePredictor(predictor, trials)
-    else:
+        task = observed_as_trained(task, predictor)
+    task = task.with_scene_cloud_size(args.observed_scene_cloud_size)
+    trials = (make_trial(task, seed, args.split) for seed in seeds)
+    if oracle or args.placement_frames:  # both answer from the trials' ground truth, so they need them first
+        trials = list(trials)
+    if oracle:
+        predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
+    elif args.placement_frames:
+        predictor = TrueFramePredictor(predictor, trials)
+    elif not goal_policy_path:
         predictor = load_predictor(args.predictor)
     output = args.output or OUTPUT["rigid"]
     selection, _, scorer = _scorer_selection(args, goal_policy_path)

@@ -53,7 +53,7 @@ def generate_dataset(
         ),
         hub_license="apache-2.0",
         tags=["pybullet", "simulation", task.name],
-        details=demonstration_details(task.name, split, seed, episodes, frames_per_episode),
+        details=demonstration_details(task.name, split, seed, episodes, frames_per_episode, task.scene_cloud_size),
     )
     features = goal_prediction_features(num_object, num_scene, with_transform=True)
     with DatasetWriter(repo_id, root, features, fps=GOAL_DATASET_FPS, card=card, overwrite=overwrite) as writer:
@@ -73,11 +73,17 @@ def generate_dataset(
     return Path(root)
 
 
-def demonstration_details(task: str, split: str, seed: int, episodes: int, frames_per_episode: int) -> dict:
-    """What a dataset's card records about its demonstrations: what a rerun compares before reusing them."""
-    return {
+def demonstration_details(
+    task: str, split: str, seed: int, episodes: int, frames_per_episode: int, scene_cloud_size: int | None = None
+) -> dict:
+    """What a dataset's card records about its demonstrations: what a rerun compares before reusing them
+    (the scene cloud size only where it is not the task's default, so older cards still match)."""
+    details = {
         "task": task,
         "geometry split": split,
         "scene seeds": f"{seed}..{seed + episodes - 1}",
         "frames per episode": str(frames_per_episode),
     }
+    if scene_cloud_size is not None:
+        details["scene points"] = str(scene_cloud_size)
+    return details

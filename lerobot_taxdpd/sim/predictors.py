@@ -25,9 +25,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lerobot_taxdpd.data.schema import SCENE_KEY
 from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.sim.poses import perturbation, transform
+from lerobot_taxdpd.sim.tasks import PlacementTask
 from lerobot_taxdpd.sim.trials import Trial
+
+
+def observed_as_trained(task: PlacementTask, predictor: object) -> PlacementTask:
+    """`task` observing as many scene points as `predictor` was trained on (its scene input feature): a
+    predictor trained on a denser recording crops its local scene from an equally dense one."""
+    feature = getattr(getattr(predictor, "config", None), "input_features", {}).get(SCENE_KEY)
+    return task.with_scene_cloud_size(feature.shape[0] if feature is not None else None)
 
 
 @runtime_checkable

@@ -80,6 +80,7 @@ def pretrain(
     overrides: Sequence[str] = (),
     overwrite: bool = False,
     resume_steps: int | None = None,
+    scene_cloud_size: int | None = None,
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
@@ -88,11 +89,12 @@ def pretrain(
     `dataset` (default `<output>/data`) lets several runs, e.g. the ablations of one task, share one set of
     demonstrations; it is generated only if it does not exist yet. What a rerun finds in place is reused
     only when made with the same options, and refused otherwise; `overwrite` makes both afresh. `resume_steps`
-    trains the finished run on to that many steps in a second leg (see `resume_once`).
+    trains the finished run on to that many steps in a second leg (see `resume_once`). `scene_cloud_size`
+    records and evaluates denser scenes than the task's default (for `--policy.local_scene_points`).
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
-    task = get_task(task_name)
+    task = get_task(task_name).with_scene_cloud_size(scene_cloud_size)
     config_path = recipe_path(recipe)
     output = Path(output)
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
@@ -159,7 +161,8 @@ def portable_commands(
     data, repo_id, run_dir = f"data/{task.name}", f"local/{task.name}", Path("outputs/train") / task.name
     generate = shlex.join(
         ["python", "-m", "lerobot_taxdpd.sim", "generate", "--task", task.name, "--episodes", str(episodes),
-         "--split", "train", "--repo-id", repo_id, "--root", data]
+         "--split", "train", "--repo-id", repo_id, "--root", data,
+         *(["--scene-cloud-size", str(task.scene_cloud_size)] if task.scene_cloud_size else [])]
     )  # fmt: skip
     train = shlex.join(train_command(Path(data), repo_id, run_dir, flags=flags))
     recipe = shlex.quote(str(_relative(config_path)))
@@ -175,7 +178,8 @@ def prepare_demonstrations(task, dataset: Path, repo_id: str, episodes: int, com
     """Generate the training demonstrations, or reuse those in place when made with the same options: a
     rerun with another `--episodes` must not train on the old ones without a word."""
     if (dataset / "meta" / "info.json").is_file() and not overwrite:
-        differences = _differences(dataset, demonstration_details(task.name, "train", 0, episodes, 2))
+        expected = demonstration_details(task.name, "train", 0, episodes, 2, task.scene_cloud_size)
+        differences = _differences(dataset, expected)
         if differences:
             raise ValueError(
                 f"{dataset}: holds demonstrations made with other options ({differences}); rerun with the "
@@ -197,7 +201,12 @@ def _differences(dataset: Path, expected: dict) -> str:
     except FileNotFoundError:
         total = json.loads((dataset / "meta" / "info.json").read_text())["total_episodes"]
         held = {**expected, "scene seeds": f"0..{total - 1}"}
-    return ", ".join(f"{key} {held.get(key)}, not {value}" for key, value in expected.items() if held.get(key) != value)
+    keys = [*expected, *(key for key in held if key not in expected)]  # a key absent on one side: its default
+    return ", ".join(
+        f"{key} {held.get(key, 'default')}, not {expected.get(key, 'default')}"
+        for key in keys
+        if held.get(key) != expected.get(key)
+    )
 
 
 def train_once(command: list[str], output: Path, run_dir: Path, *, overwrite: bool) -> float | None:

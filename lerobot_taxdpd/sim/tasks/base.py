@@ -8,6 +8,7 @@ demonstrations, observations, execution and the upside-down test.
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any
@@ -67,11 +68,24 @@ class PlacementTask(ABC):
     depth_noise: float = 0.001  # std of simulated depth noise, metres
     perturbation: tuple[float, float] = (0.02, 15.0)  # tolerance-scale error (metres, degrees)
     coverage_threshold: float = 0.02  # RMSE (metres) under which a sample counts as reaching a goal
+    scene_cloud_size: int | None = None  # scene points observed and recorded; None: the paper's count
 
     @property
     def num_points(self) -> tuple[int, int]:
         """(N_O, N_S) of observations and datasets."""
-        return DEFAULT_POINT_COUNTS[self.point_count_key]
+        num_object, num_scene = DEFAULT_POINT_COUNTS[self.point_count_key]
+        return num_object, self.scene_cloud_size or num_scene
+
+    def with_scene_cloud_size(self, size: int | None) -> PlacementTask:
+        """This task observing `size` scene points (None: the paper's count): a denser recording, from which
+        a local stage crops the scene around its frame (`local_scene_points`) at a finer spacing."""
+        if size is None or size == self.num_points[1]:
+            return self
+        if size < 16:
+            raise ValueError(f"scene cloud size: at least 16 points, got {size}")
+        dense = copy.copy(self)
+        dense.scene_cloud_size = size
+        return dense
 
     @abstractmethod
     def sample_scene(self, rng: np.random.Generator, split: str) -> Any:
