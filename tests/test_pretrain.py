@@ -34,6 +34,7 @@ def output(tmp_path):
     [
         (["--task", TASK, "--episodes", "3"], "scene seeds 0..1, not 0..2"),
         (["--task", "mug_easyrack"], "task book_shelf, not mug_easyrack"),
+        (["--task", TASK, "--episodes", "2", "--scene-cloud-size", "2048"], "scene points default, not 2048"),
     ],
 )
 def test_a_rerun_with_other_options_refuses_the_old_demonstrations(output, capsys, options, difference):
@@ -51,6 +52,30 @@ def test_matching_demonstrations_are_reused_and_overwrite_makes_new_ones(output,
     prepare_demonstrations(task, output / "data", f"local/{TASK}", 3, "cmd", overwrite=True)
     assert f"[1/4] 3 scripted {TASK} demonstrations" in capsys.readouterr().out
     assert json.loads((output / "data" / "meta" / "info.json").read_text())["total_episodes"] == 3
+
+
+def test_a_predictor_trained_on_denser_scenes_is_evaluated_on_scenes_as_dense(tmp_path, capsys):
+    """`--scene-cloud-size` records denser scenes than the task's default (the crop of a local stage is then
+    finer); the recorded command makes them again, the held-out trials of a predictor trained on them are as
+    dense, wherever it is evaluated, and a rerun without the flag does not reuse them silently."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.sim.predictors import observed_as_trained
+
+    recipe = tiny_taxdpd_recipe(tmp_path / "tiny.json")
+    output = tmp_path / "run"
+    command = ["pretrain", "--task", TASK, "--config", str(recipe), "--steps", "2", "--episodes", "2", "--trials",
+               "2", "--num-samples", "2", "--output", str(output), "--policy.local_scene_points=64"]  # fmt: skip
+    assert main([*command, "--scene-cloud-size", "2048"]) == 0
+    info = json.loads((output / "data" / "meta" / "info.json").read_text())
+    assert info["features"]["observation.pointcloud.scene"]["shape"] == [2048, 3]
+    metrics = json.loads((output / "metrics.json").read_text())
+    assert metrics["data"].endswith("--scene-cloud-size 2048)")
+    policy = load_goal_predictor(output / "train" / "checkpoints" / "last" / "pretrained_model")
+    assert observed_as_trained(get_task(TASK), policy).num_points == (512, 2048)
+    assert observed_as_trained(get_task(TASK), load_goal_predictor(TASK)) is get_task(TASK)  # shipped: as recorded
+    capsys.readouterr()
+    assert main(command) == 1
+    assert "scene points 2048, not default" in capsys.readouterr().err
 
 
 def test_recorded_commands_run_on_any_machine():

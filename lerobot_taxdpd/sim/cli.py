@@ -488,6 +488,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         total=args.trials,
     )
     report["predictor"] = goal_policy_path or args.predictor
+    report["scene_points"] = task.num_points[1]
     if scorer is not None:
         report["scorer"] = args.scorer_path or goal_policy_path
     if args.placement_frames:
