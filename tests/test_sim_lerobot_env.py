@@ -37,6 +37,19 @@ def test_every_task_is_registered_with_its_point_counts():
         TaxDPDSimEnvConfig(task="cloth")
 
 
+def test_a_denser_scene_reaches_the_policy_through_lerobots_factory():
+    """`--env.scene_cloud_size` observes as many scene points as a predictor trained on denser demos expects."""
+    config = TaxDPDSimEnvConfig(task="insert_ssd", scene_cloud_size=2048)
+    assert config.features["environment_state"].shape == (512 + 2048, 3)
+    vector = make_env(config, n_envs=1)["taxdpd_sim"][0]
+    observation, _ = vector.reset(seed=[3])
+    trial = make_trial(get_task("insert_ssd").with_scene_cloud_size(2048), 3, "test")
+    np.testing.assert_array_equal(
+        observation["environment_state"][0], np.concatenate([trial.object_points, trial.scene_points])
+    )
+    vector.close()
+
+
 def test_an_episode_executes_the_goal_cloud_then_shows_it():
     env = gym.make("lerobot_taxdpd/insert_ssd-v0")
     observation, info = env.reset(seed=4)

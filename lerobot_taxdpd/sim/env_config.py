@@ -45,6 +45,9 @@ class TaxDPDSimEnvConfig(EnvConfig):
     task: str = "mug_easyrack"
     fps: int = 1
     split: str = "test"
+    # Scene points observed per trial (default: the task's): as many as the predictor was trained on, when
+    # its demonstrations were recorded denser (`sim generate --scene-cloud-size`).
+    scene_cloud_size: int | None = None
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "environment_state": OBS_ENV_STATE})
 
@@ -52,6 +55,7 @@ class TaxDPDSimEnvConfig(EnvConfig):
         if self.task not in TASK_POINT_COUNTS:
             raise ValueError(f"env.task: unknown task {self.task!r}; choose one of {', '.join(TASK_POINT_COUNTS)}")
         num_object, num_scene = DEFAULT_POINT_COUNTS[TASK_POINT_COUNTS[self.task]]
+        num_scene = self.scene_cloud_size or num_scene
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(num_object, 3)),
             "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(num_object + num_scene, 3)),
@@ -67,4 +71,4 @@ class TaxDPDSimEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        return {"split": self.split}
+        return {"split": self.split, "scene_cloud_size": self.scene_cloud_size}

@@ -39,8 +39,10 @@ class PlacementEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
 
-    def __init__(self, task: str, split: str = "test", render_mode: str | None = "rgb_array"):
-        self._task = get_task(task)
+    def __init__(
+        self, task: str, split: str = "test", render_mode: str | None = "rgb_array", scene_cloud_size: int | None = None
+    ):
+        self._task = get_task(task).with_scene_cloud_size(scene_cloud_size)
         self.split = check_split(split)
         self.render_mode = render_mode
         self.task = task
