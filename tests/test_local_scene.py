@@ -11,10 +11,12 @@ from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.maths.geometry import nearest_points
 
 
-def _policy(local_scene_points: int) -> TaxDPDPolicy:
+def _policy(local_scene_points: int, with_whole: bool = False) -> TaxDPDPolicy:
     torch.manual_seed(0)
     fields = dict(hidden_dim=16, num_blocks=1, num_heads=2, max_neighbors=8, point_scale=20.0)
-    config = TaxDPDConfig.for_point_clouds(32, 64, device="cpu", local_scene_points=local_scene_points, **fields)
+    config = TaxDPDConfig.for_point_clouds(
+        32, 64, device="cpu", local_scene_points=local_scene_points, local_scene_with_whole=with_whole, **fields
+    )
     return TaxDPDPolicy(config)
 
 
@@ -27,11 +29,17 @@ def test_nearest_points_are_the_nearest_nearest_first():
     torch.testing.assert_close((picked - centres[:, None]).norm(dim=-1), expected)
 
 
-@pytest.mark.parametrize("local_scene_points", [0, 48], ids=["whole-scene", "local-scene"])
-def test_clutter_far_from_the_placement_frame_changes_the_goals_only_without_a_local_scene(local_scene_points):
+@pytest.mark.parametrize(
+    ("local_scene_points", "with_whole"),
+    [(0, False), (48, False), (48, True)],
+    ids=["whole-scene", "local-scene", "local-scene-beside-whole"],
+)
+def test_clutter_far_from_the_placement_frame_changes_the_goals_only_without_the_whole_scene(
+    local_scene_points, with_whole
+):
     """At given placement frames, a crop of the 48 points nearest each frame ignores clutter 5 m away; the paper's
-    layout, which shows the local stage the whole (reduced) scene, does not."""
-    policy = _policy(local_scene_points).eval()
+    layout, which shows the local stage the whole (reduced) scene, does not, nor does the crop beside it."""
+    policy = _policy(local_scene_points, with_whole).eval()
     with torch.no_grad():  # random weights: the DiT's zero-initialised blocks would ignore every scene at first
         for parameter in policy.parameters():
             parameter.normal_(0.0, 0.2)
@@ -45,14 +53,15 @@ def test_clutter_far_from_the_placement_frame_changes_the_goals_only_without_a_l
         return policy.sample_goals(objects, scene_points, 3, generator=generator, placement_frames=frames)
 
     change = (goals(scene) - goals(cluttered)).abs().max().item()
-    if local_scene_points:
+    if local_scene_points and not with_whole:
         assert change < 1e-5
     else:
         assert change > 1e-3
 
 
-def test_a_local_scene_policy_trains_and_samples_from_scenes_denser_than_its_network_sees():
-    policy = _policy(48).train()
+@pytest.mark.parametrize("with_whole", [False, True], ids=["crop", "crop-beside-whole"])
+def test_a_local_scene_policy_trains_and_samples_from_scenes_denser_than_its_network_sees(with_whole):
+    policy = _policy(48, with_whole).train()
     g = torch.Generator().manual_seed(2)
     objects = torch.rand(4, 40, 3, generator=g) * 0.1
     batch = {OBJECT_KEY: objects, SCENE_KEY: torch.rand(4, 200, 3, generator=g), ACTION_KEY: objects + 0.3}

@@ -114,6 +114,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # more) nearest the placement frame, so the place the object goes is seen at the recorded density whatever
     # the scene's extent (RPDiff crops its scene likewise).
     local_scene_points: int = 0
+    # With local_scene_points: the local stage also sees the scene the network sees, its own set of tokens
+    # beside the crop's, so what only the whole scene shows (a shelf's row of books, which way its slots run)
+    # is not cropped away with the distant points.
+    local_scene_with_whole: bool = False
     sampler: str = "ddim"
     num_inference_steps: int = 10
     num_goal_samples: int = 1  # goals sampled per call of `select_action` (the first is returned)
@@ -174,6 +178,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"z_rotation_range: degrees in [0, 180], got {self.z_rotation_range}")
         if self.local_scene_points < 0:
             raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
+        if self.local_scene_with_whole and not self.local_scene_points:
+            raise ValueError("local_scene_with_whole: needs local_scene_points > 0 (the crop it is seen beside)")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.prediction_type not in PREDICTION_TYPES:

@@ -57,7 +57,7 @@ from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, cloud_layouts
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, cloud_layouts, concat_layouts
 from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
 
 logger = logging.getLogger(__name__)
@@ -124,10 +124,31 @@ class TaxDPDModel(nn.Module):
             logits, means = self._gmm(object_points[:n], scene_points[:n], head)
             losses["loss_gmm"] = self.global_stage.loss(logits, means, target[:n])
         frame = frame.unsqueeze(1)
-        local_scene, local_layouts = clouds[-1] - frame, [layouts[0], layouts[-1]] if layouts is not None else None
-        losses.update(self.local_stage.loss(object_centred, local_scene, goal_points - frame, layouts=local_layouts))
+        local_scene, scene_layout = self._local_stage_scene(
+            clouds[1], clouds[-1], *((layouts[1], layouts[-1]) if layouts is not None else (None, None))
+        )
+        local_layouts = [layouts[0], scene_layout] if layouts is not None else None
+        losses.update(
+            self.local_stage.loss(object_centred, local_scene - frame, goal_points - frame, layouts=local_layouts)
+        )
         losses["loss"] = losses["loss_local"] + losses.get("loss_gmm", 0.0)
         return losses
+
+    def _local_stage_scene(
+        self, scene: Tensor, crop: Tensor, scene_layout: SamplingLayout | None, crop_layout: SamplingLayout | None
+    ) -> tuple[Tensor, SamplingLayout | None]:
+        """The cloud the local stage sees and its layout: the crop alone, or the network's scene beside it
+        (`local_scene_with_whole`), each part sampled on its own so that the crop keeps its density."""
+        if not self.config.local_scene_with_whole:
+            return crop, crop_layout
+        if scene.shape[0] != crop.shape[0]:  # one scene, K crops (one around each sampled frame)
+            repeats = crop.shape[0] // scene.shape[0]
+            scene = scene.repeat_interleave(repeats, 0)
+            scene_layout = scene_layout.repeat_interleave(repeats) if scene_layout is not None else None
+        layout = None
+        if scene_layout is not None:
+            layout = concat_layouts([scene_layout, crop_layout], [scene.shape[1], crop.shape[1]])
+        return torch.cat([scene, crop], 1), layout
 
     def _local_scene(self, dense_scene: Tensor, frames: Tensor) -> Tensor:
         """The local stage's scene: the `local_scene_points` points of each scene (B, M, 3) nearest its frame (B, 3)."""
@@ -174,8 +195,12 @@ class TaxDPDModel(nn.Module):
         frames = frames.reshape(b * num_samples, 3)
         if self.config.local_scene_points:
             dense = (dense_scene if dense_scene is not None else scene_points).repeat_interleave(num_samples, 0)
-            scene_local = self._local_scene(dense, frames)
-            layouts = [layouts[0], *cloud_layouts(self.config, [scene_local])] if layouts is not None else None
+            crop = self._local_scene(dense, frames)
+            crop_layout = cloud_layouts(self.config, [crop])[0] if layouts is not None else None
+            scene_local, scene_layout = self._local_stage_scene(
+                scene_points, crop, layouts[1] if layouts is not None else None, crop_layout
+            )
+            layouts = [layouts[0], scene_layout] if layouts is not None else None
         else:
             scene_local = scene_points.repeat_interleave(num_samples, 0)
         frames = frames.unsqueeze(1)
