@@ -231,6 +231,22 @@ def rotation_angle(rotation: Tensor) -> Tensor:
     return torch.acos(((trace - 1.0) / 2.0).clamp(-1.0, 1.0))
 
 
+def small_rotation_between(reference: Tensor, moved: Tensor) -> Tensor:
+    """The rotation vector w (radians) whose small turn best maps `reference` onto `moved` (..., N, 3), both
+    centred, in the least-squares sense: sum_i r_i x m_i = J w with J the inertia tensor of `reference`.
+
+    The linearised Kabsch fit: exact to first order in the angle, and unlike an SVD it has a finite gradient
+    for round shapes, whose covariance has repeated singular values. Only the rigid part of `moved`'s offset
+    moves it; stretching and point-wise scatter do not. The 3 x 3 solve does not wait for the device.
+    """
+    torque = torch.linalg.cross(reference, moved, dim=-1).sum(-2)
+    squared = reference.pow(2).sum(-1)
+    eye = torch.eye(3, dtype=reference.dtype, device=reference.device)
+    inertia = squared.sum(-1)[..., None, None] * eye - reference.transpose(-1, -2) @ reference
+    ridge = 1e-6 * inertia.diagonal(dim1=-2, dim2=-1).sum(-1).clamp_min(1e-12)[..., None, None] * eye
+    return torch.linalg.solve_ex(inertia + ridge, torque.unsqueeze(-1), check_errors=False)[0].squeeze(-1)
+
+
 def matrix_to_rotation_6d(rotation: Tensor) -> Tensor:
     """First two columns of R, flattened (Zhou et al. 2019): (..., 3, 3) -> (..., 6)."""
     return torch.cat([rotation[..., :, 0], rotation[..., :, 1]], dim=-1)

@@ -108,6 +108,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # the remaining signal (needs prediction_type='sample'; the target stays the unturned goal); "paper":
     # R phi - phi added to the shape's noise, as published, which leaves a copy of the shape at the last step.
     rotation_noise: str = "signal"
+    # A pose-level term beside the point losses (0: the paper's loss): the squared angle (radians) of the rigid
+    # turn between the predicted and the true clean goal shapes, times this weight. The point MSE weighs a
+    # 1 deg turn far below the scatter of the points; this term weighs the turn alone (needs the clean target).
+    rotation_loss_weight: float = 0.0
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
     # What the local stage sees of the scene: 0, the scene the network sees (num_scene_points of it, the paper's
     # layout); N > 0, the N points of the scene as given (denser than num_scene_points when the dataset records
@@ -176,6 +180,13 @@ class TaxDPDConfig(PreTrainedConfig):
             )
         if not 0.0 <= self.z_rotation_range <= 180.0:
             raise ValueError(f"z_rotation_range: degrees in [0, 180], got {self.z_rotation_range}")
+        if self.rotation_loss_weight < 0:
+            raise ValueError(f"rotation_loss_weight: must be >= 0, got {self.rotation_loss_weight}")
+        if self.rotation_loss_weight > 0 and (self.prediction_type != "sample" or self.local_diffusion != "point"):
+            raise ValueError(
+                "rotation_loss_weight: needs prediction_type='sample' and local_diffusion='point' (it compares "
+                "the predicted clean goal points with the true ones)"
+            )
         if self.local_scene_points < 0:
             raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
         if self.local_scene_with_whole and not self.local_scene_points:

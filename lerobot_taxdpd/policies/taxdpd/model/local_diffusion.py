@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from lerobot_taxdpd.maths.geometry import small_rotation_between
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
@@ -162,6 +163,7 @@ class LocalDiffusion(nn.Module):
         self.sampler = DDIMSampler(config)
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
         self.rotation_noise = config.rotation_noise
+        self.rotation_loss_weight = config.rotation_loss_weight
 
     def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
@@ -192,7 +194,16 @@ class LocalDiffusion(nn.Module):
             noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         noisy = {k: scheduler.add_noise(signal[k], noise[k], t) for k in clean}
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
-        return param.loss(self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t), target)
+        predicted = self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t)
+        losses = param.loss(predicted, target)
+        if self.rotation_loss_weight > 0:
+            # The pose-level term: how far the predicted clean shape is turned from the goal's, weighted by the
+            # signal left at t (near pure noise the clean estimate blends the modes and its turn means nothing).
+            turn = small_rotation_between(param.centred_shape(clean), param.centred_shape(predicted))
+            signal = scheduler.alphas_cumprod.to(t.device)[t].to(turn.dtype)
+            losses["loss_pose_rotation"] = (signal * turn.pow(2).sum(-1)).mean()
+            losses["loss_local"] = losses["loss_local"] + self.rotation_loss_weight * losses["loss_pose_rotation"]
+        return losses
 
     @torch.no_grad()
     def sample(

@@ -81,6 +81,9 @@ class DisentangledPoints:
     def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         return {"frame": frame_out.unsqueeze(1), "shape": _centre(point_out)}
 
+    def centred_shape(self, state: State) -> Tensor:
+        return state["shape"]
+
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
         frame = F.mse_loss(predicted["frame"], target["frame"])
         shape = F.mse_loss(predicted["shape"], target["shape"])
@@ -115,6 +118,9 @@ class JointPoints:
 
     def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         return {"points": point_out}
+
+    def centred_shape(self, state: State) -> Tensor:
+        return _centre(state["points"])
 
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
         points = F.mse_loss(predicted["points"], target["points"])
