@@ -112,6 +112,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # turn between the predicted and the true clean goal shapes, times this weight. The point MSE weighs a
     # 1 deg turn far below the scatter of the points; this term weighs the turn alone (needs the clean target).
     rotation_loss_weight: float = 0.0
+    # The frame's (goal centroid's) loss against the shape's, 1 as published (half each). The shape's loss holds
+    # the scatter of every point and dwarfs the frame's where the object is large (a book: 6x), so the shared
+    # network spends little on reading where in the scene the centroid goes.
+    frame_loss_weight: float = 1.0
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
     # What the local stage sees of the scene: 0, the scene the network sees (num_scene_points of it, the paper's
     # layout); N > 0, the N points of the scene as given (denser than num_scene_points when the dataset records
@@ -187,6 +191,10 @@ class TaxDPDConfig(PreTrainedConfig):
                 "rotation_loss_weight: needs prediction_type='sample' and local_diffusion='point' (it compares "
                 "the predicted clean goal points with the true ones)"
             )
+        if not self.frame_loss_weight > 0:
+            raise ValueError(f"frame_loss_weight: must be positive, got {self.frame_loss_weight}")
+        if self.frame_loss_weight != 1.0 and not self.disentangled:
+            raise ValueError("frame_loss_weight: needs disentangled=true (the joint diffusion has no frame of its own)")
         if self.local_scene_points < 0:
             raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
         if self.local_scene_with_whole and not self.local_scene_points:

@@ -53,6 +53,9 @@ class DisentangledPoints:
     frame_dim = 3
     has_point_output = True
 
+    def __init__(self, frame_weight: float = 1.0) -> None:
+        self.frame_weight = frame_weight
+
     def encode(self, goal: Tensor, object_centred: Tensor) -> State:
         frame = goal.mean(dim=1, keepdim=True)
         return {"frame": frame, "shape": goal - frame}
@@ -87,7 +90,7 @@ class DisentangledPoints:
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
         frame = F.mse_loss(predicted["frame"], target["frame"])
         shape = F.mse_loss(predicted["shape"], target["shape"])
-        return {"loss_local": 0.5 * frame + 0.5 * shape, "loss_frame": frame, "loss_shape": shape}
+        return {"loss_local": 0.5 * self.frame_weight * frame + 0.5 * shape, "loss_frame": frame, "loss_shape": shape}
 
 
 class JointPoints:
@@ -131,6 +134,9 @@ class SE3Pose:
     frame_dim = 9
     has_point_output = False
 
+    def __init__(self, frame_weight: float = 1.0) -> None:
+        self.frame_weight = frame_weight
+
     def encode(self, goal: Tensor, object_centred: Tensor) -> State:
         frame = goal.mean(dim=1, keepdim=True)
         rotation = fit_rigid_transform(object_centred, goal - frame)[..., :3, :3]
@@ -162,10 +168,14 @@ class SE3Pose:
     def loss(self, predicted: State, target: State) -> dict[str, Tensor]:
         frame = F.mse_loss(predicted["frame"], target["frame"])
         rotation = F.mse_loss(predicted["rotation"], target["rotation"])
-        return {"loss_local": 0.5 * frame + 0.5 * rotation, "loss_frame": frame, "loss_rotation": rotation}
+        return {
+            "loss_local": 0.5 * self.frame_weight * frame + 0.5 * rotation,
+            "loss_frame": frame,
+            "loss_rotation": rotation,
+        }
 
 
 def make_parameterization(config) -> DisentangledPoints | JointPoints | SE3Pose:
     if config.local_diffusion == "se3":
-        return SE3Pose()
-    return DisentangledPoints() if config.disentangled else JointPoints()
+        return SE3Pose(config.frame_loss_weight)
+    return DisentangledPoints(config.frame_loss_weight) if config.disentangled else JointPoints()

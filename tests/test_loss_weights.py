@@ -1,5 +1,6 @@
-"""`rotation_loss_weight`: a pose-level term that weighs the rigid turn of the predicted goal, which the point loss
-weighs far below the points' scatter."""
+"""The local stage's loss weights: `rotation_loss_weight`, a pose-level term that weighs the rigid turn of the
+predicted goal, which the point loss weighs far below the points' scatter, and `frame_loss_weight`, the goal
+centroid's share against the shape's."""
 
 from __future__ import annotations
 
@@ -93,6 +94,19 @@ def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
     torch.testing.assert_close(parts["loss_local"], plain["loss_local"] + 10.0 * term)
 
 
+def test_the_frame_weight_scales_the_frame_term_alone():
+    g = torch.Generator().manual_seed(0)
+    obj, scene = torch.rand(4, 32, 3, generator=g) * 0.1, torch.rand(4, 64, 3, generator=g)
+    batch = {OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.2}
+    plain_policy, weighted = _policy(), _policy(frame_loss_weight=5.0)
+    torch.manual_seed(5)
+    _, plain = plain_policy.forward(batch)
+    torch.manual_seed(5)
+    _, parts = weighted.forward(batch)
+    torch.testing.assert_close(parts["loss_frame"], plain["loss_frame"])
+    torch.testing.assert_close(parts["loss_local"], plain["loss_local"] + 0.5 * 4.0 * plain["loss_frame"])
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
@@ -102,8 +116,10 @@ def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
             "prediction_type='sample'",
         ),
         (dict(rotation_loss_weight=1.0, local_diffusion="se3"), "local_diffusion='point'"),
+        (dict(frame_loss_weight=0.0), "frame_loss_weight: must be positive"),
+        (dict(frame_loss_weight=2.0, disentangled=False), "frame_loss_weight: needs disentangled=true"),
     ],
-    ids=["negative", "noise-target", "se3"],
+    ids=["negative", "noise-target", "se3", "frame-zero", "frame-joint"],
 )
 def test_settings_it_cannot_serve_are_refused_by_name(overrides, message):
     with pytest.raises(ValueError, match=message):
