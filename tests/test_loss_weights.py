@@ -77,15 +77,21 @@ def _policy(**overrides) -> TaxDPDPolicy:
     return policy
 
 
-def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
+def _losses_beside_the_default(**overrides) -> tuple[torch.Tensor, dict, dict, TaxDPDPolicy]:
+    """One training batch through the default policy and through one with `overrides`: same weights, same noise."""
     g = torch.Generator().manual_seed(0)
     obj, scene = torch.rand(4, 32, 3, generator=g) * 0.1, torch.rand(4, 64, 3, generator=g)
     batch = {OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.2}
-    plain_policy, weighted = _policy(), _policy(rotation_loss_weight=10.0)
+    plain_policy, weighted = _policy(), _policy(**overrides)
     torch.manual_seed(5)
     _, plain = plain_policy.forward(batch)
     torch.manual_seed(5)
     loss, parts = weighted.forward(batch)
+    return loss, parts, plain, weighted
+
+
+def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
+    loss, parts, plain, weighted = _losses_beside_the_default(rotation_loss_weight=10.0)
     loss.backward()
     assert all(p.grad is not None for p in weighted.parameters())
     term = parts["loss_pose_rotation"]
@@ -95,14 +101,7 @@ def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
 
 
 def test_the_frame_weight_scales_the_frame_term_alone():
-    g = torch.Generator().manual_seed(0)
-    obj, scene = torch.rand(4, 32, 3, generator=g) * 0.1, torch.rand(4, 64, 3, generator=g)
-    batch = {OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj + 0.2}
-    plain_policy, weighted = _policy(), _policy(frame_loss_weight=5.0)
-    torch.manual_seed(5)
-    _, plain = plain_policy.forward(batch)
-    torch.manual_seed(5)
-    _, parts = weighted.forward(batch)
+    _, parts, plain, _ = _losses_beside_the_default(frame_loss_weight=5.0)
     torch.testing.assert_close(parts["loss_frame"], plain["loss_frame"])
     torch.testing.assert_close(parts["loss_local"], plain["loss_local"] + 0.5 * 4.0 * plain["loss_frame"])
 
