@@ -237,7 +237,8 @@ def small_rotation_between(reference: Tensor, moved: Tensor) -> Tensor:
 
     The linearised Kabsch fit: exact to first order in the angle, and unlike an SVD it has a finite gradient
     for round shapes, whose covariance has repeated singular values. Only the rigid part of `moved`'s offset
-    moves it; stretching and point-wise scatter do not. The 3 x 3 solve does not wait for the device.
+    moves it; stretching and point-wise scatter do not, but a cloud squashed across one axis shows less of a turn
+    about the others (as to any rigid fit). The 3 x 3 solve does not wait for the device.
     """
     torque = torch.linalg.cross(reference, moved, dim=-1).sum(-2)
     squared = reference.pow(2).sum(-1)
