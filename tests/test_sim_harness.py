@@ -71,10 +71,30 @@ def test_errors_are_measured_as_the_error_that_was_made():
     assert shifted["rotation_error_deg"]["median"] < 0.01
     # A pure translation moves the gripper by the same amount.
     assert shifted["gripper_translation_error_mm"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert shifted["executed_pose_translation_error_mm"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert shifted["executed_pose_rotation_error_deg"]["median"] < 0.01
     turned = evaluate(OraclePredictor(trials, rotation_deg=3.0), trials, 2, progress=False)
     assert turned["rotation_error_deg"]["median"] == pytest.approx(3.0, abs=0.01)
+    assert turned["executed_pose_rotation_error_deg"]["median"] == pytest.approx(3.0, abs=0.01)
     assert turned["gripper_rotation_error_deg"]["median"] == pytest.approx(3.0, abs=0.01)
     assert "coverage@2" not in shifted  # one socket: no coverage to report
+
+
+class StrayPoints(OraclePredictor):
+    """The ground truth with a tenth of each cloud's points 10 cm off: the centroid moves, the rigid fit does not."""
+
+    def sample_goals(self, object_points, scene_points, num_samples):
+        samples = super().sample_goals(object_points, scene_points, num_samples)
+        samples[:, :, : samples.shape[2] // 10] += torch.tensor([0.1, 0.0, 0.0], dtype=samples.dtype)
+        return samples
+
+
+def test_the_executed_pose_is_measured_apart_from_the_sampled_cloud():
+    trials = _trials("insert_waterproof", 2)
+    report = evaluate(StrayPoints(trials), trials, 2, progress=False)
+    assert report["translation_error_mm"]["median"] == pytest.approx(10.0, abs=0.5)
+    assert report["executed_pose_translation_error_mm"]["median"] < 0.01
+    assert report["success"]["success_rate"] == 1.0  # what ran was the goal itself
 
 
 class FirstSampleOff(OraclePredictor):
