@@ -183,11 +183,12 @@ class LocalDiffusion(nn.Module):
         device = generator.device if generator is not None else goal.device
         t = torch.randint(0, scheduler.config.num_train_timesteps, (goal.shape[0],), generator=generator, device=device)
         t = t.to(goal.device)
+        alpha_bar = scheduler.alphas_cumprod.to(t.device)[t]  # the share of the clean goal left at t
         signal = clean
         if self.rotation_noise == "signal" and self.rotation_noise_std > 0:
             # The rotation perturbs the signal itself, by less as the noise fades, so that the last timestep
             # is pure noise (where sampling starts) and the target stays the unturned goal.
-            noise_level = (1.0 - scheduler.alphas_cumprod.to(t.device)[t]).sqrt()
+            noise_level = (1.0 - alpha_bar).sqrt()
             signal = param.turn_shape(clean, self.rotation_noise_std * noise_level, generator)
             noise = param.sample_noise(clean, 0.0, generator)
         else:
@@ -200,8 +201,7 @@ class LocalDiffusion(nn.Module):
             # The pose-level term: how far the predicted clean shape is turned from the goal's, weighted by the
             # signal left at t (near pure noise the clean estimate blends the modes and its turn means nothing).
             turn = small_rotation_between(param.centred_shape(clean), param.centred_shape(predicted))
-            signal = scheduler.alphas_cumprod.to(t.device)[t].to(turn.dtype)
-            losses["loss_pose_rotation"] = (signal * turn.pow(2).sum(-1)).mean()
+            losses["loss_pose_rotation"] = (alpha_bar.to(turn.dtype) * turn.pow(2).sum(-1)).mean()
             losses["loss_local"] = losses["loss_local"] + self.rotation_loss_weight * losses["loss_pose_rotation"]
         return losses
 
