@@ -1,6 +1,7 @@
 """The local stage's loss weights: `rotation_loss_weight`, a pose-level term that weighs the rigid turn of the
-predicted goal, which the point loss weighs far below the points' scatter, and `frame_loss_weight`, the goal
-centroid's share against the shape's."""
+predicted goal, which the point loss weighs far below the points' scatter, `spread_loss_weight`, a shape-level
+term that charges a goal squashed across an axis, and `frame_loss_weight`, the goal centroid's share against
+the shape's."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import torch
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
-from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, small_rotation_between
+from lerobot_taxdpd.maths.geometry import axis_angle_to_matrix, principal_spreads, small_rotation_between
 
 
 def _centred(x: torch.Tensor) -> torch.Tensor:
@@ -65,6 +66,22 @@ def test_the_gradient_is_finite_for_round_shapes():
     assert moved.grad.isfinite().all() and moved.grad.abs().max() > 0
 
 
+def test_the_spreads_are_a_boxs_extents_in_any_orientation_and_a_flattened_one_shows():
+    """A 3 x 1 x 0.5 box's principal spreads are its extents / sqrt(12) whichever way it is turned; squashing
+    its thin axis tenfold shows there and nowhere else, and a flat cloud keeps a finite gradient."""
+    box = _box_cloud(4)
+    axis = torch.nn.functional.normalize(torch.tensor([0.3, -0.5, 0.8]), dim=0)
+    turned = box @ axis_angle_to_matrix(axis, torch.tensor(1.1)).T
+    expected = torch.tensor([0.5, 1.0, 3.0]) / math.sqrt(12)
+    torch.testing.assert_close(principal_spreads(box), expected.expand(4, 3), rtol=0.1, atol=0.0)
+    torch.testing.assert_close(principal_spreads(turned), principal_spreads(box), rtol=1e-4, atol=1e-6)
+    squashed = principal_spreads(box * torch.tensor([1.0, 1.0, 0.1])) / principal_spreads(box)
+    torch.testing.assert_close(squashed, torch.tensor([0.1, 1.0, 1.0]).expand(4, 3), rtol=0.0, atol=0.01)
+    flat = (box * torch.tensor([1.0, 1.0, 0.0])).requires_grad_()
+    principal_spreads(flat).sum().backward()
+    assert flat.grad.isfinite().all()
+
+
 def _policy(**overrides) -> TaxDPDPolicy:
     torch.manual_seed(0)
     config = TaxDPDConfig.for_point_clouds(
@@ -100,6 +117,15 @@ def test_the_term_adds_to_the_local_loss_and_reaches_every_parameter():
     torch.testing.assert_close(parts["loss_local"], plain["loss_local"] + 10.0 * term)
 
 
+def test_the_spread_term_adds_to_the_local_loss_beside_the_pose_term():
+    loss, parts, plain, weighted = _losses_beside_the_default(rotation_loss_weight=10.0, spread_loss_weight=3.0)
+    loss.backward()
+    assert all(p.grad is not None for p in weighted.parameters())
+    spread, turn = parts["loss_shape_spread"], parts["loss_pose_rotation"]
+    assert spread > 0
+    torch.testing.assert_close(parts["loss_local"], plain["loss_local"] + 10.0 * turn + 3.0 * spread)
+
+
 def test_the_frame_weight_scales_the_frame_term_alone():
     _, parts, plain, _ = _losses_beside_the_default(frame_loss_weight=5.0)
     torch.testing.assert_close(parts["loss_frame"], plain["loss_frame"])
@@ -115,10 +141,12 @@ def test_the_frame_weight_scales_the_frame_term_alone():
             "prediction_type='sample'",
         ),
         (dict(rotation_loss_weight=1.0, local_diffusion="se3"), "local_diffusion='point'"),
+        (dict(spread_loss_weight=-0.5), "spread_loss_weight: must be >= 0"),
+        (dict(spread_loss_weight=1.0, local_diffusion="se3"), "spread_loss_weight: needs"),
         (dict(frame_loss_weight=0.0), "frame_loss_weight: must be positive"),
         (dict(frame_loss_weight=2.0, disentangled=False), "frame_loss_weight: needs disentangled=true"),
     ],
-    ids=["negative", "noise-target", "se3", "frame-zero", "frame-joint"],
+    ids=["negative", "noise-target", "se3", "spread-negative", "spread-se3", "frame-zero", "frame-joint"],
 )
 def test_settings_it_cannot_serve_are_refused_by_name(overrides, message):
     with pytest.raises(ValueError, match=message):

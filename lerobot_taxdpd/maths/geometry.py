@@ -248,6 +248,19 @@ def small_rotation_between(reference: Tensor, moved: Tensor) -> Tensor:
     return torch.linalg.solve_ex(inertia + ridge, torque.unsqueeze(-1), check_errors=False)[0].squeeze(-1)
 
 
+def principal_spreads(points: Tensor) -> Tensor:
+    """The standard deviation of centred points (..., N, 3) along each of their principal axes, ascending
+    (..., 3): a cloud's extent without its orientation (a box's thickness, width and length).
+
+    eigvalsh's gradient stays finite where two axes spread alike (a round plug); the spreads are floored at a
+    thousandth of the cloud's overall spread, so that a cloud squashed flat still has a finite gradient.
+    """
+    covariance = points.transpose(-1, -2) @ points / points.shape[-2]
+    variances = torch.linalg.eigvalsh(covariance).clamp_min(0.0)
+    floor = 1e-6 * variances.sum(-1, keepdim=True).clamp_min(1e-12)
+    return (variances + floor).sqrt()
+
+
 def matrix_to_rotation_6d(rotation: Tensor) -> Tensor:
     """First two columns of R, flattened (Zhou et al. 2019): (..., 3, 3) -> (..., 6)."""
     return torch.cat([rotation[..., :, 0], rotation[..., :, 1]], dim=-1)

@@ -114,6 +114,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # Measured on the book (docs/taxdpd.md): at 30 it halved the turn and moved the position, and flattened the
     # samples across the book's thickness, where a squashed cloud hides a turn.
     rotation_loss_weight: float = 0.0
+    # A shape-level term beside it (0: the paper's loss): the predicted clean goal shape's spread along each of
+    # its principal axes against the true shape's (relative, squared), weighted like the pose-level term. It
+    # charges the squashing that the pose-level term alone rewards across a thin axis.
+    spread_loss_weight: float = 0.0
     # The frame's (goal centroid's) loss against the shape's, 1 as published (half each). The shape's loss holds
     # the scatter of every point and dwarfs the frame's where the object is large (a book: 6x), so the shared
     # network spends little on reading where in the scene the centroid goes.
@@ -186,13 +190,15 @@ class TaxDPDConfig(PreTrainedConfig):
             )
         if not 0.0 <= self.z_rotation_range <= 180.0:
             raise ValueError(f"z_rotation_range: degrees in [0, 180], got {self.z_rotation_range}")
-        if self.rotation_loss_weight < 0:
-            raise ValueError(f"rotation_loss_weight: must be >= 0, got {self.rotation_loss_weight}")
-        if self.rotation_loss_weight > 0 and (self.prediction_type != "sample" or self.local_diffusion != "point"):
-            raise ValueError(
-                "rotation_loss_weight: needs prediction_type='sample' and local_diffusion='point' (it compares "
-                "the predicted clean goal points with the true ones)"
-            )
+        for name in ("rotation_loss_weight", "spread_loss_weight"):
+            weight = getattr(self, name)
+            if weight < 0:
+                raise ValueError(f"{name}: must be >= 0, got {weight}")
+            if weight > 0 and (self.prediction_type != "sample" or self.local_diffusion != "point"):
+                raise ValueError(
+                    f"{name}: needs prediction_type='sample' and local_diffusion='point' (it compares the "
+                    "predicted clean goal points with the true ones)"
+                )
         if not self.frame_loss_weight > 0:
             raise ValueError(f"frame_loss_weight: must be positive, got {self.frame_loss_weight}")
         if self.frame_loss_weight != 1.0 and not self.disentangled:

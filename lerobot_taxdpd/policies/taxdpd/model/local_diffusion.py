@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lerobot_taxdpd.maths.geometry import small_rotation_between
+from lerobot_taxdpd.maths.geometry import principal_spreads, small_rotation_between
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead, TimestepEmbedding
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import State, make_parameterization, randn_like
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
@@ -164,6 +164,7 @@ class LocalDiffusion(nn.Module):
         self.rotation_noise_std = math.radians(config.rotation_noise_std_deg) if config.use_rotation_noise else 0.0
         self.rotation_noise = config.rotation_noise
         self.rotation_loss_weight = config.rotation_loss_weight
+        self.spread_loss_weight = config.spread_loss_weight
 
     def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
@@ -197,12 +198,17 @@ class LocalDiffusion(nn.Module):
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
         predicted = self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t)
         losses = param.loss(predicted, target)
+        # The pose- and shape-level terms are weighted by the signal left at t: near pure noise the clean
+        # estimate blends the modes, and its turn and extent mean nothing.
         if self.rotation_loss_weight > 0:
-            # The pose-level term: how far the predicted clean shape is turned from the goal's, weighted by the
-            # signal left at t (near pure noise the clean estimate blends the modes and its turn means nothing).
             turn = small_rotation_between(param.centred_shape(clean), param.centred_shape(predicted))
             losses["loss_pose_rotation"] = (alpha_bar.to(turn.dtype) * turn.pow(2).sum(-1)).mean()
             losses["loss_local"] = losses["loss_local"] + self.rotation_loss_weight * losses["loss_pose_rotation"]
+        if self.spread_loss_weight > 0:
+            true_spread = principal_spreads(param.centred_shape(clean))
+            relative = principal_spreads(param.centred_shape(predicted)) / true_spread - 1.0
+            losses["loss_shape_spread"] = (alpha_bar.to(relative.dtype) * relative.pow(2).sum(-1)).mean()
+            losses["loss_local"] = losses["loss_local"] + self.spread_loss_weight * losses["loss_shape_spread"]
         return losses
 
     @torch.no_grad()
