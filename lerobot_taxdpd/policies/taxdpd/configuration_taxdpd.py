@@ -116,7 +116,8 @@ class TaxDPDConfig(PreTrainedConfig):
     rotation_loss_weight: float = 0.0
     # A shape-level term beside it (0: the paper's loss): the predicted clean goal shape's spread along each of
     # its principal axes against the true shape's (relative, squared), weighted like the pose-level term. It
-    # charges the squashing that the pose-level term alone rewards across a thin axis.
+    # charges the squashing that the pose-level term alone rewards across a thin axis. Measured on the book at 3
+    # beside a pose-level weight of 30 (docs/taxdpd.md): the executed pose got worse (8.7 deg), so it stays off.
     spread_loss_weight: float = 0.0
     # The frame's (goal centroid's) loss against the shape's, 1 as published (half each). The shape's loss holds
     # the scatter of every point and dwarfs the frame's where the object is large (a book: 6x), so the shared
