@@ -198,15 +198,17 @@ class LocalDiffusion(nn.Module):
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
         predicted = self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t)
         losses = param.loss(predicted, target)
+        if self.rotation_loss_weight == 0 and self.spread_loss_weight == 0:
+            return losses
         # The pose- and shape-level terms are weighted by the signal left at t: near pure noise the clean
         # estimate blends the modes, and its turn and extent mean nothing.
+        true_shape, predicted_shape = param.centred_shape(clean), param.centred_shape(predicted)
         if self.rotation_loss_weight > 0:
-            turn = small_rotation_between(param.centred_shape(clean), param.centred_shape(predicted))
+            turn = small_rotation_between(true_shape, predicted_shape)
             losses["loss_pose_rotation"] = (alpha_bar.to(turn.dtype) * turn.pow(2).sum(-1)).mean()
             losses["loss_local"] = losses["loss_local"] + self.rotation_loss_weight * losses["loss_pose_rotation"]
         if self.spread_loss_weight > 0:
-            true_spread = principal_spreads(param.centred_shape(clean))
-            relative = principal_spreads(param.centred_shape(predicted)) / true_spread - 1.0
+            relative = principal_spreads(predicted_shape) / principal_spreads(true_shape) - 1.0
             losses["loss_shape_spread"] = (alpha_bar.to(relative.dtype) * relative.pow(2).sum(-1)).mean()
             losses["loss_local"] = losses["loss_local"] + self.spread_loss_weight * losses["loss_shape_spread"]
         return losses
