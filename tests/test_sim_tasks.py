@@ -9,7 +9,7 @@ import pytest
 from lerobot_taxdpd.data.schema import placement_frame
 from lerobot_taxdpd.maths.geometry import estimate_rigid_transform
 from lerobot_taxdpd.sim.controller import penetration
-from lerobot_taxdpd.sim.poses import perturbation, set_body_pose, transform
+from lerobot_taxdpd.sim.poses import perturbation, rotation_angle_deg, set_body_pose, transform
 from lerobot_taxdpd.sim.tasks import get_task, task_names
 from lerobot_taxdpd.sim.trials import execute, make_trial
 from lerobot_taxdpd.sim.world import physics_world
@@ -104,6 +104,21 @@ def test_views_of_one_demo_differ_but_share_the_goal_transform():
             trial.goal_points(view),
             trial.goal_transform,
         )
+
+
+def test_book_demonstrations_pick_one_side_of_the_tied_box_symmetries():
+    """The book's two least-turn poses always tie; the demonstrated one must be the same side up in every scene,
+    or the observed points' centroid (off the box's centre, away from the unseen bottom face) jumps along the
+    row between demonstrations."""
+    task = get_task("book_shelf")
+    for seed in range(8):
+        trial = make_trial(task, seed, "train")
+        goal_pose = trial.goal_transform @ trial.start_pose
+        offset = trial.goal_points().mean(0) - goal_pose[:3, 3]
+        along_row = (trial.scene.shelf_pose[:3, :3].T @ offset)[0]
+        assert along_row > 0.002, f"seed {seed}: observed centroid {1000 * along_row:.1f} mm along the row"
+        turns = [rotation_angle_deg(pose[:3, :3] @ trial.start_pose[:3, :3].T) for pose in trial.modes[0].poses]
+        assert rotation_angle_deg(trial.goal_transform[:3, :3]) == pytest.approx(min(turns), abs=0.5)
 
 
 def test_insertion_grasp_varies_like_the_papers_data():

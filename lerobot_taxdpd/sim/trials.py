@@ -17,7 +17,7 @@ import numpy as np
 from lerobot_taxdpd.maths.geometry import farthest_point_indices, transform_points
 from lerobot_taxdpd.sim.cameras import jitter_cameras, render_segmented_clouds
 from lerobot_taxdpd.sim.controller import penetration, sweep_to_goal
-from lerobot_taxdpd.sim.poses import body_pose, rotation_angle_deg, set_body_pose
+from lerobot_taxdpd.sim.poses import body_pose, set_body_pose
 from lerobot_taxdpd.sim.splits import SPLITS, check_split
 from lerobot_taxdpd.sim.success import upside_down_test
 from lerobot_taxdpd.sim.tasks.base import BuiltScene, GoalMode, PlacementTask
@@ -161,7 +161,7 @@ def make_trial(task: PlacementTask, seed: int, split: str = "test", num_views: i
             continue
         start = task.start_pose(scene)
         mode = modes[int(rng.integers(len(modes)))]
-        goal = min(mode.poses, key=lambda pose: rotation_angle_deg(pose[:3, :3] @ start[:3, :3].T))
+        goal = task.demonstrated_pose(mode, scene)
         return Trial(
             task=task,
             seed=int(seed),

@@ -17,6 +17,7 @@ import numpy as np
 
 from lerobot_taxdpd.data.schema import DEFAULT_POINT_COUNTS
 from lerobot_taxdpd.sim.cameras import CameraSpec
+from lerobot_taxdpd.sim.poses import rotation_angle_deg
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,12 @@ class PlacementTask(ABC):
     def goal_modes(self, scene: Any) -> list[GoalMode]:
         """Every candidate valid goal; the pipeline drops the ones the controller cannot reach."""
 
+    def demonstrated_pose(self, mode: GoalMode, scene: Any) -> np.ndarray:
+        """Which of a mode's equally valid poses the demonstrator puts the object in: the least turn from the
+        start. A task whose least turns tie overrides this, since a choice the observations cannot tell apart
+        makes the demonstrated target a coin flip the model cannot learn."""
+        return least_turn_poses(mode, self.start_pose(scene))[0]
+
     @abstractmethod
     def object_cameras(self, scene: Any) -> list[CameraSpec]:
         """Cameras that see the object at its start pose (two or more, partial views)."""
@@ -125,3 +132,10 @@ class PlacementTask(ABC):
     def gripper_start_pose(self, scene: Any) -> np.ndarray | None:
         """World pose of the gripper holding the object when it is observed (insertion tasks only)."""
         return None
+
+
+def least_turn_poses(mode: GoalMode, start_pose: np.ndarray, tie_deg: float = 0.5) -> list[np.ndarray]:
+    """The poses of `mode` within `tie_deg` of the least turn from `start_pose`, least turn first."""
+    turns = [rotation_angle_deg(pose[:3, :3] @ start_pose[:3, :3].T) for pose in mode.poses]
+    order = sorted(range(len(turns)), key=turns.__getitem__)
+    return [mode.poses[i] for i in order if turns[i] <= turns[order[0]] + tie_deg]
