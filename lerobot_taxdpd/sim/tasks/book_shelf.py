@@ -1,7 +1,7 @@
 """Book/Shelf: put a book lying on the table upright into one of the free slots of a bookshelf.
 
-Valid goals: every free slot, the book standing upright on the shelf board 1.5 mm above it, centred in
-the slot and 4 mm in front of the back wall, in each of its four box symmetries. The controller pushes
+Valid goals: every free slot, the book standing upright 6 mm above the shelf board (it is let fall onto it),
+centred in the slot and 4 mm in front of the back wall, in each of its four box symmetries. The controller pushes
 the book in from the open front, perpendicular to the back wall. Success: after settling the book is
 upright (within 15 deg), rests on the board between two neighbours of a free slot, does not touch the
 table, and rises out of the open-topped shelf upside down (which also rejects any book wedged into it).
@@ -22,7 +22,11 @@ from lerobot_taxdpd.sim.tasks.base import BuiltScene, GoalMode, PlacementTask, l
 from lerobot_taxdpd.sim.world import add_table
 
 BOOK_MASS = 0.4
-DROP_GAP = 0.0015
+# How far above the board the book is let go. The controller pushes it in level from the front, so a book
+# whose bottom is 1 mm or more below the board's top catches on its edge and falls (the ground truth lowered
+# 3 mm: 0 of 40 placed), while one let go from 30 mm above still stands (40 of 40). At 1.5 mm the demonstrated
+# goal sat 2 mm from that edge and a predictor's 2-3 mm height error fell off it; 6 mm leaves room both ways.
+DROP_GAP = 0.006
 BOX_SYMMETRIES = (np.eye(3), rot_z(np.pi), rot_x(np.pi), rot_y(np.pi))
 
 
