@@ -12,7 +12,7 @@ import torch
 
 from lerobot_taxdpd.goal_predictors import load_scorer, resolve_goal_predictor, resolve_scorer, weights_digest
 from lerobot_taxdpd.maths.selection import executed_first
-from lerobot_taxdpd.policies.goal_scorer import GoalScorer, GoalScorerConfig
+from lerobot_taxdpd.policies.goal_scorer import GoalScorer, GoalScorerConfig, search_shifts
 from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collect, load_collection
 from lerobot_taxdpd.scoring.shipping import commands, evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
@@ -86,6 +86,33 @@ def test_collection_executes_every_sample_runs_in_legs_and_refuses_other_options
     with pytest.raises(ValueError, match="trained on the samples of goal predictor weights"):
         ship_scorer(tmp_path / "scorer", "mug_medrack", evaluation, tmp_path / "elsewhere")
     assert not (tmp_path / "elsewhere").exists()
+
+    # Shipped with a search around its samples: measured with and without it on the same samples, paired, and
+    # the search lands in the shipped config, so the predictor's name brings it.
+    search = {"search_extent_mm": 3.0}
+    searched = evaluate_choice("mug_easyrack", "mug_easyrack", str(tmp_path / "scorer"), range(1), num_samples=3,
+                               search=search)  # fmt: skip
+    assert searched["search"] == {"extent_mm": 3.0, "step_mm": 3.0} and sum(searched["paired_search"].values()) == 1
+    shipped = ship_scorer(tmp_path / "scorer", "mug_easyrack", searched, tmp_path / "searching", search=search)
+    assert load_scorer(shipped).config.search_extent_mm == 3.0
+    assert load_scorer(tmp_path / "scorer").config.search_extent_mm == 0.0, "the trained scorer is left as it was"
+    card = (shipped / "README.md").read_text()
+    assert "moved by its search (up to 3 mm in x and y" in card and "--search-extent-mm 3" in card
+
+    # Shifted copies for a searching scorer: the scene's samples first, as collected without them, then copies
+    # of them moved rigidly in x and y within the extent, each executed.
+    collect("mug_easyrack", "mug_easyrack", range(5000, 5001), tmp_path / "shifted", num_samples=3, shard_size=1,
+            shifted_copies=2, shift_extent_mm=9.0)  # fmt: skip
+    details, shifted = load_collection(tmp_path / "shifted")
+    assert details["shifted_copies"] == 2 and shifted["success"].shape == (1, 5)
+    np.testing.assert_array_equal(shifted["samples"][0, :3], data["samples"][0])
+    moved = shifted["samples"][0, 3:, None] - shifted["samples"][0, None, :3]  # (copies, K, N, 3)
+    offsets = moved.mean(2)
+    rigid = np.abs(moved - offsets[:, :, None]).max((2, 3))
+    source = rigid.argmin(1)
+    offsets = offsets[[0, 1], source]
+    assert (rigid[[0, 1], source] < 1e-5).all()
+    assert (np.abs(offsets[:, :2]) <= 0.009 + 1e-6).all() and (np.abs(offsets[:, 2]) < 1e-6).all()
 
 
 def _box_collection(folder: Path, rng, scenes: int, k: int, candidates) -> dict[str, np.ndarray]:
@@ -175,6 +202,10 @@ def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsy
     assert sim_main([*common, "--task", "mug_easyrack", "--goal-policy.path", "mug_easyrack",
                      "--goal-selection", "scorer"]) != 0  # fmt: skip
     assert "unknown goal scorer 'mug_easyrack'" in capsys.readouterr().err
+    assert sim_main([*common, "--task", "book_shelf", "--goal-policy.path", "book_shelf", "--goal-selection",
+                     "scorer", "--scorer.search-extent-mm", "-1"]) != 0  # fmt: skip
+    assert "--search-extent-mm must be >= 0" in capsys.readouterr().err
+    assert not (tmp_path / "book_shelf_eval.json").exists()
     assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang",
                      "--scorer.path", str(tmp_path)]) != 0  # fmt: skip
     assert f"--scorer.path {tmp_path}: {tmp_path}: not a goal scorer checkpoint (no config.json)" in (
@@ -219,6 +250,36 @@ def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path, c
         collect("mug_easyrack", "mug_easyrack", range(1), tmp_path / "rigid", executor="cloth_hang")
 
 
+def test_the_search_executes_the_best_rated_shifted_copy_of_a_sample():
+    """With a search the scorer executes a sample moved within its grid, rated at least as high as any sample as
+    sampled; without one it is the plain pick. The shipped book scorer on a held-out book scene."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor
+    from lerobot_taxdpd.sim.harness import sample_trial_goals
+    from lerobot_taxdpd.sim.predictors import observed_as_trained
+    from lerobot_taxdpd.sim.tasks import get_task
+    from lerobot_taxdpd.sim.trials import make_trial
+
+    grid = search_shifts(6.0, 3.0)
+    assert len(grid) == 25 and grid[0].abs().sum() == 0 and grid[:, 2].abs().max() == 0
+    assert grid.abs().max() == pytest.approx(0.006) and len(search_shifts(0.0, 3.0)) == 1
+    predictor, scorer = load_goal_predictor("book_shelf"), load_scorer("book_shelf")
+    trial = make_trial(observed_as_trained(get_task("book_shelf"), predictor), 1000)
+    samples = torch.from_numpy(sample_trial_goals(predictor, trial, 4))
+    scene, start = torch.from_numpy(trial.scene_points), torch.from_numpy(trial.object_points)
+    plain_scores = scorer.score(samples, scene, start)
+    scorer.config.search_extent_mm = 0.0
+    plain = scorer.choose(samples, scene, start)
+    assert plain.index == int(plain_scores.argmax()) and plain.shift.abs().sum() == 0
+    torch.testing.assert_close(plain.scores, plain_scores)
+    torch.testing.assert_close(plain.goal, samples[plain.index])
+    scorer.config.search_extent_mm = 6.0
+    moved = scorer.choose(samples, scene, start)
+    assert (moved.scores >= plain_scores - 1e-5).all() and moved.scores.max() == moved.scores[moved.index]
+    assert moved.shift.abs().max() <= 0.006 + 1e-9 and moved.shift[2] == 0
+    torch.testing.assert_close(moved.goal, samples[moved.index] + moved.shift.double())
+    torch.testing.assert_close(scorer.score(moved.goal[None], scene, start)[0], moved.scores[moved.index])
+
+
 def test_a_shipped_scorer_is_found_by_its_predictors_name(tmp_path):
     """`--goal-selection scorer` alone takes the scorer shipped beside the goal predictor of that name."""
     output = tmp_path / "eval"
@@ -242,3 +303,8 @@ def test_a_cards_commands_remake_the_scorer_as_it_was_trained():
     assert [line.split("--seeds ")[1].split(" --")[0] for line in collect] == ["5000 5109", "5300 5409"]
     assert all("--executor" not in line for line in collect), "the executor shipped with the predictor's name"
     assert train.endswith("--seed 0 --num-goal-points 256 --start-displacement")
+    searching = {**metrics, "search_extent_mm": 9.0, "search_step_mm": 3.0,
+                 "collection": {"num_samples": 20, "shifted_copies": 20, "shift_extent_mm": 9.0}}  # fmt: skip
+    *collected, searched = commands(searching, "book_shelf")
+    assert searched.endswith("--start-displacement --search-extent-mm 9 --search-step-mm 3")
+    assert all(line.endswith("--num-samples 20 --shifted-copies 20 --shift-extent-mm 9") for line in collected)

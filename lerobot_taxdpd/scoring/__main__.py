@@ -25,6 +25,7 @@ import json
 import sys
 from pathlib import Path
 
+from lerobot_taxdpd.scoring.options import add_search_arguments, with_search
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 
@@ -58,6 +59,17 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME_OR_PATH",
         help="cloth_hang only: the gc_dp3 policy that hangs each sampled goal (default: the goal predictor's name)",
     )
+    collect.add_argument(
+        "--shifted-copies",
+        type=int,
+        default=0,
+        metavar="N",
+        help="rigid tasks: also execute N copies a scene of its samples moved in x and y, so that a scorer that "
+        "searches (--search-extent-mm) learns what a shift does (default: 0)",
+    )
+    collect.add_argument(
+        "--shift-extent-mm", type=float, default=0.0, metavar="MM", help="how far those copies move at most"
+    )
     add_threads_argument(collect)
     train = verbs.add_parser("train", help="train a scorer on a collection")
     train.add_argument("--collection", type=Path, required=True)
@@ -77,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="also show the scorer each candidate point's offset from the start object (for cloth: how far the "
         "executor must carry each part)",
     )
+    add_search_arguments(train)
     add_threads_argument(train)
     ship = verbs.add_parser("ship", help="measure a scorer against the first sample, paired, and ship it")
     ship.add_argument("--scorer", type=Path, required=True, help="a folder written by `train`")
@@ -92,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="cloth_hang only: parallel simulation processes (default: 1); its per-trial report is written in "
         "<SCORER>/evaluation",
     )
+    add_search_arguments(ship)
     add_threads_argument(ship)
     return parser
 
@@ -115,11 +129,15 @@ def main(argv: list[str] | None = None) -> int:
                 shard_size=args.shard_size,
                 executor=args.executor,
                 workers=args.workers,
+                shifted_copies=args.shifted_copies,
+                shift_extent_mm=args.shift_extent_mm,
             )
             print(f"{len(shards)} shards in {args.output}")
         elif args.verb == "ship":
             from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 
+            search = {"search_extent_mm": args.search_extent_mm, "search_step_mm": args.search_step_mm}
+            search = {name: value for name, value in search.items() if value is not None}
             evaluation = evaluate_choice(
                 args.task,
                 args.goal_policy_path,
@@ -127,24 +145,27 @@ def main(argv: list[str] | None = None) -> int:
                 range(args.trials),
                 args.num_samples,
                 workers=args.workers,
+                search=search,
             )
             print(json.dumps(evaluation, indent=2))
             if args.ship is not None:
-                print(f"shipped as {ship_scorer(args.scorer, args.goal_policy_path, evaluation, args.ship)}")
+                shipped = ship_scorer(args.scorer, args.goal_policy_path, evaluation, args.ship, search=search)
+                print(f"shipped as {shipped}")
         else:
             from lerobot_taxdpd.policies.goal_scorer import GoalScorerConfig
             from lerobot_taxdpd.scoring.training import train_scorer
 
+            config = GoalScorerConfig(
+                **({"num_goal_points": args.num_goal_points} if args.num_goal_points else {}),
+                start_displacement=args.start_displacement,
+            )
             metrics = train_scorer(
                 args.collection,
                 args.output,
                 steps=args.steps,
                 batch_scenes=args.batch_scenes,
                 seed=args.seed,
-                config=GoalScorerConfig(
-                    **({"num_goal_points": args.num_goal_points} if args.num_goal_points else {}),
-                    start_displacement=args.start_displacement,
-                ),
+                config=with_search(config, args),
             )
             print(json.dumps(metrics["held_back_scenes"]))
             print(f"scorer saved in {args.output}")

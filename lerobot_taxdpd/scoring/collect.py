@@ -9,6 +9,10 @@ so a collection runs in legs: a rerun with the same arguments skips the shards i
 shards are the unit that `workers` processes share out.
 `collection.json` records what made them (task, goal predictor and its weights' hash, K, split), and a rerun
 with other options is refused rather than mixed in.
+
+A scorer that searches (`GoalScorerConfig.search_extent_mm`) rates samples moved where the predictor did not put
+them; `shifted_copies` adds such candidates to each scene, copies of its samples moved horizontally at random
+within `shift_extent_mm` and executed like the rest, so that the scorer learns what a shift does.
 """
 
 from __future__ import annotations
@@ -61,19 +65,28 @@ def collect(
     executor: str | None = None,
     workers: int = 1,
     progress: bool = True,
+    shifted_copies: int = 0,
+    shift_extent_mm: float = 0.0,
 ) -> list[Path]:
     """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`.
 
     Rigid tasks execute each sample as `sim eval` does; `cloth_hang` hangs the cloth with the gc_dp3 `executor`
     (default: the one shipped with the goal predictor's name) conditioned on each sample, and stores no RMSE
     (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger). With `workers` > 1,
-    shards are labelled in that many processes (one torch thread each), each shard by one of them."""
+    shards are labelled in that many processes (one torch thread each), each shard by one of them. Rigid tasks
+    can add `shifted_copies` candidates a scene: samples moved by up to `shift_extent_mm` in x and y (the K
+    samples come first, so rules that read the first sample still see the predictor's)."""
     from lerobot_taxdpd.goal_predictors import resolve_executor, resolve_goal_predictor, weights_digest
 
     if num_samples < 2:
         raise ValueError(f"num_samples: a scorer chooses among samples, so at least 2, got {num_samples}")
     if workers < 1:
         raise ValueError(f"workers: must be at least 1, got {workers}")
+    if shifted_copies < 0 or (shifted_copies and shift_extent_mm <= 0):
+        raise ValueError(
+            f"shifted copies: need a count >= 0 and, with copies, an extent > 0 mm; got {shifted_copies} and "
+            f"{shift_extent_mm}"
+        )
     source = resolve_goal_predictor(goal_policy)
     details = {
         "task": task_name,
@@ -82,8 +95,12 @@ def collect(
         "goal_policy_weights": weights_digest(source),
         "num_samples": num_samples,
     }
+    if shifted_copies:  # recorded only when used, so collections made before still match their reruns
+        details |= {"shifted_copies": shifted_copies, "shift_extent_mm": shift_extent_mm}
     resolved_executor = None
     if task_name == CLOTH_TASK:
+        if shifted_copies:
+            raise ValueError(f"shifted copies: measured for rigid tasks, not {task_name}")
         executor = str(executor or goal_policy)  # recorded as given, as the goal predictor is: no machine's folders
         resolved_executor = resolve_executor(executor)
         details |= {"executor": executor, "executor_weights": weights_digest(resolved_executor)}
@@ -95,7 +112,8 @@ def collect(
     seeds = list(seeds)
     chunks = [seeds[i : i + shard_size] for i in range(0, len(seeds), shard_size)]
     todo = [c for c in chunks if not (output / _shard_name(c)).is_file()]
-    job = functools.partial(_collect_shard, task_name, source, resolved_executor, num_samples, output)
+    shifts = (shifted_copies, shift_extent_mm / 1000)
+    job = functools.partial(_collect_shard, task_name, source, resolved_executor, num_samples, shifts, output)
     bar = tqdm(total=sum(map(len, todo)), desc=f"{task_name} scenes", disable=not progress)
     if workers == 1 or len(todo) <= 1:
         for chunk in todo:
@@ -115,15 +133,17 @@ def _collect_shard(
     source: str,
     executor: str | None,
     num_samples: int,
+    shifts: tuple[int, float],
     output: Path,
     chunk: list[int],
     on_scene: Callable[[], object] | None = None,
 ) -> int:
-    """Label the scenes of one shard and write it whole; the number of scenes (what a worker reports back)."""
+    """Label the scenes of one shard and write it whole; the number of scenes (what a worker reports back).
+    `shifts`: how many shifted copies a scene gets, and how far (metres) they may move."""
     if task_name == CLOTH_TASK:
         label_scene = functools.partial(_cloth_scene, source, executor, num_samples)
     else:
-        label_scene = _rigid_labeller(task_name, source, num_samples)
+        label_scene = _rigid_labeller(task_name, source, num_samples, *shifts)
     rows = {name: [] for name in SHARD_ARRAYS}
     for seed in chunk:
         for name, value in label_scene(seed).items():
@@ -145,8 +165,18 @@ def _row(seed: int, scene, obj, samples, success, rmse) -> dict[str, np.ndarray]
     }
 
 
+def shifted_copies_of(samples: np.ndarray, copies: int, extent: float, rng: np.random.Generator) -> np.ndarray:
+    """`copies` clouds (copies, N, 3): samples drawn at random, each moved by a uniform offset within +-`extent`
+    in x and y (metres)."""
+    chosen = samples[rng.integers(len(samples), size=copies)]
+    offsets = np.concatenate([rng.uniform(-extent, extent, (copies, 2)), np.zeros((copies, 1))], 1)
+    return chosen + offsets[:, None]
+
+
 @functools.lru_cache(maxsize=1)  # one per process, whatever the number of shards it labels
-def _rigid_labeller(task_name: str, source: str, num_samples: int) -> Callable[[int], dict[str, np.ndarray]]:
+def _rigid_labeller(
+    task_name: str, source: str, num_samples: int, shifted_copies: int = 0, shift_extent: float = 0.0
+) -> Callable[[int], dict[str, np.ndarray]]:
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
     from lerobot_taxdpd.sim.harness import sample_trial_goals
     from lerobot_taxdpd.sim.predictors import observed_as_trained
@@ -159,6 +189,9 @@ def _rigid_labeller(task_name: str, source: str, num_samples: int) -> Callable[[
     def label(seed: int) -> dict[str, np.ndarray]:
         trial = make_trial(task, seed, "train")
         samples = sample_trial_goals(predictor, trial, num_samples)
+        if shifted_copies:  # drawn from the scene's seed, so a shard is the same whoever labels it
+            copies = shifted_copies_of(samples, shifted_copies, shift_extent, np.random.default_rng(seed))
+            samples = np.concatenate([samples, copies])
         return _row(seed, trial.scene_points, trial.object_points, samples, *label_samples(trial, samples))
 
     return label

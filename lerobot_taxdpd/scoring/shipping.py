@@ -8,6 +8,8 @@ evaluation, a card), where `--goal-selection scorer` finds it by the predictor's
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
 import shlex
 import shutil
@@ -32,11 +34,16 @@ def evaluate_choice(
     *,
     workers: int = 1,
     reports: Path | None = None,
+    search: dict | None = None,
 ) -> dict:
     """Success of the task's baseline rule (the first sample; cloth_hang: the consensus one, its default) and of
-    the scorer's choice on the same held-out trials, with paired counts. cloth_hang also executes the first
-    sample, runs `workers` processes and writes its per-trial report in `reports` (default: `<scorer>/evaluation`)."""
+    the scorer's choice on the same held-out trials, with paired counts. `search` overrides the scorer's search
+    settings (`search_extent_mm`, `search_step_mm`); a scorer that searches is also measured choosing among the
+    samples as sampled, so the search's own gain shows. cloth_hang also executes the first sample, runs
+    `workers` processes and writes its per-trial report in `reports` (default: `<scorer>/evaluation`)."""
     if task_name == CLOTH_TASK:
+        if search and search.get("search_extent_mm"):
+            raise ValueError(f"{CLOTH_TASK}: the scorer's search around its samples is for rigid tasks")
         return _evaluate_cloth_choice(goal_policy, scorer_path, seeds, num_samples, workers, reports)
     from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer
     from lerobot_taxdpd.sim.harness import evaluate
@@ -45,11 +52,27 @@ def evaluate_choice(
     from lerobot_taxdpd.sim.trials import make_trial
 
     predictor, scorer = load_goal_predictor(goal_policy), load_scorer(scorer_path)
+    scorer.config = dataclasses.replace(scorer.config, **(search or {}))
     task = observed_as_trained(get_task(task_name), predictor)
     trials = [make_trial(task, seed, "test") for seed in seeds]
     first = evaluate(predictor, trials, num_samples, goal_selection="first")
     chosen = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=scorer)
-    return {
+    searched = {}
+    if scorer.config.search_extent_mm:
+        plain = copy.deepcopy(scorer)
+        plain.config = dataclasses.replace(scorer.config, search_extent_mm=0.0)
+        unmoved = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=plain)
+        searched = {
+            "search": {"extent_mm": scorer.config.search_extent_mm, "step_mm": scorer.config.search_step_mm},
+            "scorer_without_search": unmoved["success"],
+            "paired_search": paired_outcomes(
+                [t["success"] for t in chosen["per_trial"]], [t["success"] for t in unmoved["per_trial"]],
+                ("search", "without_search"),
+            ),
+            "scorer_without_search_translation_error_mm": unmoved["translation_error_mm"]["median"],
+            "scorer_without_search_rotation_error_deg": unmoved["rotation_error_deg"]["median"],
+        }
+    return searched | {
         "task": task.name,
         "trials": f"{len(trials)} held-out trials (test geometry, seeds {seeds.start}..{seeds.stop - 1}), "
         f"K = {num_samples}",
@@ -139,6 +162,9 @@ def commands(metrics: dict, task: str) -> list[str]:
                    str(collection["num_samples"])]  # fmt: skip
         if collection.get("executor", task) != task:
             collect += ["--executor", collection["executor"]]
+        if collection.get("shifted_copies"):
+            collect += ["--shifted-copies", str(collection["shifted_copies"]),
+                        "--shift-extent-mm", f"{collection['shift_extent_mm']:g}"]  # fmt: skip
         lines.append(shlex.join(collect))
     train = ["python", "-m", "lerobot_taxdpd.scoring", "train", "--collection", data, "--output",
              f"outputs/scorer/{task}", "--steps", str(metrics["steps"]), "--batch-scenes",
@@ -147,12 +173,18 @@ def commands(metrics: dict, task: str) -> list[str]:
         train += ["--num-goal-points", str(metrics["num_goal_points"])]
     if metrics.get("start_displacement"):
         train.append("--start-displacement")
+    if metrics.get("search_extent_mm"):
+        train += ["--search-extent-mm", f"{metrics['search_extent_mm']:g}",
+                  "--search-step-mm", f"{metrics['search_step_mm']:g}"]  # fmt: skip
     return [*lines, shlex.join(train)]
 
 
-def ship_scorer(scorer_dir: Path, goal_policy: str, evaluation: dict, destination: Path) -> Path:
-    """Copy a trained scorer to `<destination>/<task>/scorer/` with this evaluation in its metrics and a card;
-    refused when `goal_policy` is not the predictor whose samples it learnt."""
+def ship_scorer(
+    scorer_dir: Path, goal_policy: str, evaluation: dict, destination: Path, search: dict | None = None
+) -> Path:
+    """Copy a trained scorer to `<destination>/<task>/scorer/` with this evaluation in its metrics and a card,
+    and `search` (the settings it was evaluated with) in its config; refused when `goal_policy` is not the
+    predictor whose samples it learnt."""
     from lerobot_taxdpd.goal_predictors import resolve_goal_predictor
 
     scorer_dir, task = Path(scorer_dir), evaluation["task"]
@@ -169,6 +201,14 @@ def ship_scorer(scorer_dir: Path, goal_policy: str, evaluation: dict, destinatio
     if target.resolve() != scorer_dir.resolve():  # a shipped scorer re-measured stays where it is
         for name in SCORER_FILES:
             shutil.copyfile(scorer_dir / name, target / name)
+    config = {**json.loads((target / "config.json").read_text()), **(search or {})}
+    (target / "config.json").write_text(json.dumps(config, indent=2))
+    defaults = GoalScorerConfig()
+    metrics = {
+        **metrics,
+        "search_extent_mm": config.get("search_extent_mm", defaults.search_extent_mm),
+        "search_step_mm": config.get("search_step_mm", defaults.search_step_mm),
+    }
     metrics = {**metrics, "evaluation": evaluation, "commands": commands(metrics, task)}
     (target / METRICS_FILE).write_text(json.dumps(metrics, indent=2))
     (target / "README.md").write_text(card(metrics))
@@ -195,10 +235,17 @@ def _result_rows(e: dict) -> tuple[str, list[str]]:
         valid = e["executed_goal_valid"]
         rows = [f"| {_RULE_LABELS[r]} | {_rate(rate, r == 'scorer')} | {valid[r]:.0%} |" for r, rate in rates.items()]
         return "| executed sample | success | executed goal valid |\n|---|---|---|", rows
+    measured = [(_RULE_LABELS[e["baseline_rule"]], "baseline")]
+    if "search" in e:
+        measured.append(("the scorer's choice among the samples as sampled", "scorer_without_search"))
+        label = f"the scorer's choice, moved by its search (up to {e['search']['extent_mm']:g} mm in x and y, "
+        measured.append((label + f"a {e['search']['step_mm']:g} mm grid)", "scorer"))
+    else:
+        measured.append((_RULE_LABELS["scorer"], "scorer"))
     rows = []
-    for rule, key in ((e["baseline_rule"], "baseline"), ("scorer", "scorer")):
+    for label, key in measured:
         errors = f"{e[f'{key}_translation_error_mm']:.1f} mm / {e[f'{key}_rotation_error_deg']:.1f} deg"
-        rows.append(f"| {_RULE_LABELS[rule]} | {_rate(e[key], rule == 'scorer')} | {errors} |")
+        rows.append(f"| {label} | {_rate(e[key], key == 'scorer')} | {errors} |")
     return "| executed sample | success | translation / rotation (median) |\n|---|---|---|", rows
 
 
@@ -213,6 +260,11 @@ def card(metrics: dict) -> str:
         "executed_goal_valid" in e
     ) else ""
     outcomes = "(hung, not hung)" if e["task"] == CLOTH_TASK else "(successful, failed)"
+    search = ""
+    if "paired_search" in e:
+        q = e["paired_search"]
+        search = (f" The search against the same choice unmoved: both {q['both']}, only searched {q['only_search']}, "
+                  f"only unmoved {q['only_without_search']}, neither {q['neither']}.")  # fmt: skip
     ordered = held.get("pairs_ordered")
     pairs = f"; it orders {ordered:.0%} of their {outcomes} sample pairs right" if ordered is not None else ""
     use = f"python -m lerobot_taxdpd.sim eval --task {e['task']} --goal-policy.path {e['task']}"
@@ -240,7 +292,7 @@ each executed in simulation, on {metrics['training_scenes']} training-geometry s
 {table}
 
 Paired against the {baseline} sample: both {p['both']}, only the scorer's {p['only_scorer']}, only the
-{baseline} {p['only_baseline']}, neither {p['neither']}.{best} On {held.get('scenes', 0)} training-geometry
+{baseline} {p['only_baseline']}, neither {p['neither']}.{best}{search} On {held.get('scenes', 0)} training-geometry
 scenes held back from its training: the scorer's choice {held.get('scorer', 0):.0%}, the first sample
 {held.get('first_sample', 0):.0%}, the best of the K {held.get('any_sample', 0):.0%}{pairs}.
 

@@ -175,6 +175,8 @@ def train_scorer(
         "batch_scenes": batch_scenes,
         "num_goal_points": config.num_goal_points,
         "start_displacement": config.start_displacement,
+        "search_extent_mm": config.search_extent_mm,
+        "search_step_mm": config.search_step_mm,
         "train_seconds": time.perf_counter() - started,
         "final_loss": float(np.mean(losses[-50:])),
         "held_back_scenes": validation,

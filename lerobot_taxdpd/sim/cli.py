@@ -22,6 +22,7 @@ from pathlib import Path
 from lerobot_taxdpd.cli_options import add_deprecated_alias
 from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.selection import GOAL_SELECTIONS
+from lerobot_taxdpd.scoring.options import add_search_arguments, with_search
 from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
@@ -125,6 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="goal scorer for --goal-selection scorer: a shipped name that has one (its scorer/), a folder "
         "written by `python -m lerobot_taxdpd.scoring train` or a Hub id",
     )
+    add_search_arguments(evaluate, "--scorer.")
     evaluate.add_argument("--seed", type=int, default=0, help="trial i uses scene seed SEED + i (default: 0)")
     evaluate.add_argument("--split", choices=SPLITS, default="test", help="geometry split (default: test, held out)")
     evaluate.add_argument(
@@ -331,7 +333,12 @@ def _evaluate_cloth(args: argparse.Namespace) -> int:
     )
 
     output = args.output or OUTPUT[CLOTH_TASK]
-    selection, scorer_path, _ = _scorer_selection(args, args.goal_policy_path)  # workers load it by its path
+    selection, scorer_path, scorer = _scorer_selection(args, args.goal_policy_path)  # workers load it by its path
+    if scorer is not None and scorer.config.search_extent_mm:
+        raise ValueError(
+            f"{CLOTH_TASK}: the scorer's search around its samples is for rigid tasks (a shifted cloth goal is not "
+            "measured); give --scorer.search-extent-mm 0"
+        )
     if args.ship is not None and selection == "scorer":
         raise ValueError(SHIP_WITH_A_SCORER)
     summary = evaluate(
@@ -405,6 +412,7 @@ def _scorer_selection(args: argparse.Namespace, goal_policy_path: str | None):
     except (OSError, ValueError) as error:
         raise ValueError(f"--scorer.path {source}: {error}") from error
     _warn_if_scorer_learnt_another_predictor(folder, goal_policy_path)
+    scorer.config = with_search(scorer.config, args)
     return selection, folder, scorer
 
 

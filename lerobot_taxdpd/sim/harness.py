@@ -2,7 +2,8 @@
 
 For every trial the predictor samples K goal clouds; one is executed after RANSAC-SVD turns it into a pose:
 the first (one shot, no reranking, as in the paper), with `goal_selection="consensus"` the sample the
-others agree with most (`maths.selection`), or with `"scorer"` the one a learned scorer rates highest.
+others agree with most (`maths.selection`), or with `"scorer"` the one a learned scorer rates highest (moved
+where the scorer rates it highest, when the scorer searches around its samples).
 Errors are measured against the valid goal nearest to the executed sample (the demonstrated goal when the
 task has one mode and the object no symmetry), so a sample that solves the scene another valid way is not
 penalised. Multi-modal tasks also get coverage@K and precision@K, counting each mode (peg, slot, support,
@@ -135,12 +136,15 @@ def run_trial(
     pose to it by RANSAC-SVD, execute and score it."""
     tick = time.perf_counter()
     samples = sample_trial_goals(predictor, trial, num_samples)
-    scores = None
+    choice = None
     if goal_selection == "scorer":
         scene, start = torch.from_numpy(trial.scene_points), torch.from_numpy(trial.object_points)
-        scores = scorer.score(torch.from_numpy(samples), scene, start).numpy()
+        choice = scorer.choose(torch.from_numpy(samples), scene, start)
     predict_seconds = time.perf_counter() - tick
+    scores = None if choice is None else choice.scores.numpy()
     samples, executed = executed_first(samples, goal_selection, trial.task.coverage_threshold, scores)
+    if choice is not None:
+        samples[0] = choice.goal.numpy()  # the chosen sample as the scorer's search moved it
     transform, outcome = execute_sample(trial, samples[0])
     record = {
         "seed": trial.seed,
@@ -150,6 +154,8 @@ def run_trial(
         "executed_sample": executed,
         **score_trial(trial, samples, transform),
     }
+    if choice is not None:
+        record["executed_shift_mm"] = [round(float(x) * 1000, 3) for x in choice.shift]
     return TrialRun(samples, outcome, record, predict_seconds)
 
 
