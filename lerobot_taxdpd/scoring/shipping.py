@@ -202,8 +202,10 @@ def ship_scorer(
         for name in SCORER_FILES:
             shutil.copyfile(scorer_dir / name, target / name)
     config = {**json.loads((target / "config.json").read_text()), **(search or {})}
-    (target / "config.json").write_text(json.dumps(config, indent=2))
     defaults = GoalScorerConfig()
+    if config.get("search_extent_mm"):  # the grid in full, whatever the scorer was trained with
+        config.setdefault("search_step_mm", defaults.search_step_mm)
+    (target / "config.json").write_text(json.dumps(config, indent=2))
     metrics = {
         **metrics,
         "search_extent_mm": config.get("search_extent_mm", defaults.search_extent_mm),
