@@ -206,6 +206,9 @@ def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsy
                      "scorer", "--scorer.search-extent-mm", "-1"]) != 0  # fmt: skip
     assert "--search-extent-mm must be >= 0" in capsys.readouterr().err
     assert not (tmp_path / "book_shelf_eval.json").exists()
+    assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang", "--policy.path",
+                     "cloth_hang", "--goal-selection", "scorer", "--scorer.search-extent-mm", "3"]) != 0  # fmt: skip
+    assert "the scorer's search around its samples is for rigid tasks" in capsys.readouterr().err
     assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang",
                      "--scorer.path", str(tmp_path)]) != 0  # fmt: skip
     assert f"--scorer.path {tmp_path}: {tmp_path}: not a goal scorer checkpoint (no config.json)" in (
