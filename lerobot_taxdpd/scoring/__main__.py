@@ -25,7 +25,7 @@ import json
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.scoring.options import add_search_arguments, with_search
+from lerobot_taxdpd.cli_options import add_search_arguments, search_overrides, with_search
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
 
@@ -136,8 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         elif args.verb == "ship":
             from lerobot_taxdpd.scoring.shipping import evaluate_choice, ship_scorer
 
-            search = {"search_extent_mm": args.search_extent_mm, "search_step_mm": args.search_step_mm}
-            search = {name: value for name, value in search.items() if value is not None}
+            search = search_overrides(args)
             evaluation = evaluate_choice(
                 args.task,
                 args.goal_policy_path,

@@ -206,12 +206,12 @@ def ship_scorer(
     if config.get("search_extent_mm"):  # the grid in full, whatever the scorer was trained with
         config.setdefault("search_step_mm", defaults.search_step_mm)
     (target / "config.json").write_text(json.dumps(config, indent=2))
-    metrics = {
-        **metrics,
+    metrics |= {
         "search_extent_mm": config.get("search_extent_mm", defaults.search_extent_mm),
         "search_step_mm": config.get("search_step_mm", defaults.search_step_mm),
+        "evaluation": evaluation,
     }
-    metrics = {**metrics, "evaluation": evaluation, "commands": commands(metrics, task)}
+    metrics["commands"] = commands(metrics, task)
     (target / METRICS_FILE).write_text(json.dumps(metrics, indent=2))
     (target / "README.md").write_text(card(metrics))
     return target

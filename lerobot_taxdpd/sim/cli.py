@@ -19,10 +19,9 @@ import shlex
 import sys
 from pathlib import Path
 
-from lerobot_taxdpd.cli_options import add_deprecated_alias
+from lerobot_taxdpd.cli_options import add_deprecated_alias, add_search_arguments, with_search
 from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.selection import GOAL_SELECTIONS
-from lerobot_taxdpd.scoring.options import add_search_arguments, with_search
 from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
