@@ -290,6 +290,10 @@ def test_a_shipped_scorer_is_found_by_its_predictors_name(tmp_path):
                      "scorer", "--trials", "1", "--figures", "0", "--output", str(output)]) == 0  # fmt: skip
     report = json.loads((output / "book_shelf_eval.json").read_text())
     assert report["goal_selection"] == "scorer" and report["scorer"] == "book_shelf"
+    # The book's scorer ships with its search on: the executed goal moved within its horizontal grid.
+    extent = load_scorer("book_shelf").config.search_extent_mm
+    shift = report["per_trial"][0]["executed_shift_mm"]
+    assert extent > 0 and max(abs(shift[0]), abs(shift[1])) <= extent and shift[2] == 0
     card = json.loads((Path(resolve_scorer("book_shelf")) / "metrics.json").read_text())
     assert card["collection"]["goal_policy_weights"] == weights_digest(resolve_goal_predictor("book_shelf"))
 
