@@ -209,6 +209,9 @@ def test_eval_options_of_the_scorer_are_checked_before_any_trial(tmp_path, capsy
     assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang", "--policy.path",
                      "cloth_hang", "--goal-selection", "scorer", "--scorer.search-extent-mm", "3"]) != 0  # fmt: skip
     assert "the scorer's search around its samples is for rigid tasks" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="search around its samples is for rigid tasks"):
+        evaluate_choice("cloth_hang", "cloth_hang", resolve_scorer("cloth_hang"), range(1),
+                        search={"search_extent_mm": 3.0})  # fmt: skip
     assert sim_main([*common, "--task", "cloth_hang", "--goal-policy.path", "cloth_hang",
                      "--scorer.path", str(tmp_path)]) != 0  # fmt: skip
     assert f"--scorer.path {tmp_path}: {tmp_path}: not a goal scorer checkpoint (no config.json)" in (

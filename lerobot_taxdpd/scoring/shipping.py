@@ -41,53 +41,54 @@ def evaluate_choice(
     settings (`search_extent_mm`, `search_step_mm`); a scorer that searches is also measured choosing among the
     samples as sampled, so the search's own gain shows. cloth_hang also executes the first sample, runs
     `workers` processes and writes its per-trial report in `reports` (default: `<scorer>/evaluation`)."""
+    from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer
+
+    scorer = load_scorer(scorer_path)
+    scorer.config = dataclasses.replace(scorer.config, **(search or {}))
     if task_name == CLOTH_TASK:
-        if search and search.get("search_extent_mm"):
+        if scorer.config.search_extent_mm:  # given here or carried in its config: neither reaches cloth's workers
             raise ValueError(f"{CLOTH_TASK}: the scorer's search around its samples is for rigid tasks")
         return _evaluate_cloth_choice(goal_policy, scorer_path, seeds, num_samples, workers, reports)
-    from lerobot_taxdpd.goal_predictors import load_goal_predictor, load_scorer
     from lerobot_taxdpd.sim.harness import evaluate
     from lerobot_taxdpd.sim.predictors import observed_as_trained
     from lerobot_taxdpd.sim.tasks import get_task
     from lerobot_taxdpd.sim.trials import make_trial
 
-    predictor, scorer = load_goal_predictor(goal_policy), load_scorer(scorer_path)
-    scorer.config = dataclasses.replace(scorer.config, **(search or {}))
+    predictor = load_goal_predictor(goal_policy)
     task = observed_as_trained(get_task(task_name), predictor)
     trials = [make_trial(task, seed, "test") for seed in seeds]
     first = evaluate(predictor, trials, num_samples, goal_selection="first")
     chosen = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=scorer)
-    searched = {}
+    figures = _rule_figures(first, "baseline") | _rule_figures(chosen, "scorer")
+    figures["paired"] = _paired(chosen, first, ("scorer", "baseline"))
     if scorer.config.search_extent_mm:
         plain = copy.deepcopy(scorer)
         plain.config = dataclasses.replace(scorer.config, search_extent_mm=0.0)
         unmoved = evaluate(predictor, trials, num_samples, goal_selection="scorer", scorer=plain)
-        searched = {
+        figures |= _rule_figures(unmoved, "scorer_without_search") | {
             "search": {"extent_mm": scorer.config.search_extent_mm, "step_mm": scorer.config.search_step_mm},
-            "scorer_without_search": unmoved["success"],
-            "paired_search": paired_outcomes(
-                [t["success"] for t in chosen["per_trial"]], [t["success"] for t in unmoved["per_trial"]],
-                ("search", "without_search"),
-            ),
-            "scorer_without_search_translation_error_mm": unmoved["translation_error_mm"]["median"],
-            "scorer_without_search_rotation_error_deg": unmoved["rotation_error_deg"]["median"],
+            "paired_search": _paired(chosen, unmoved, ("search", "without_search")),
         }
-    return searched | {
+    return {
         "task": task.name,
         "trials": f"{len(trials)} held-out trials (test geometry, seeds {seeds.start}..{seeds.stop - 1}), "
         f"K = {num_samples}",
         "baseline_rule": "first",
-        "baseline": first["success"],
-        "scorer": chosen["success"],
-        "paired": paired_outcomes(
-            [t["success"] for t in chosen["per_trial"]], [t["success"] for t in first["per_trial"]],
-            ("scorer", "baseline"),
-        ),
-        "scorer_translation_error_mm": chosen["translation_error_mm"]["median"],
-        "scorer_rotation_error_deg": chosen["rotation_error_deg"]["median"],
-        "baseline_translation_error_mm": first["translation_error_mm"]["median"],
-        "baseline_rotation_error_deg": first["rotation_error_deg"]["median"],
+    } | figures
+
+
+def _rule_figures(report: dict, key: str) -> dict:
+    """One rule's evaluation report as the card reads it, under `key`: its success and median errors."""
+    return {
+        key: report["success"],
+        f"{key}_translation_error_mm": report["translation_error_mm"]["median"],
+        f"{key}_rotation_error_deg": report["rotation_error_deg"]["median"],
     }
+
+
+def _paired(a: dict, b: dict, names: tuple[str, str]) -> dict[str, int]:
+    """Paired outcomes of two evaluation reports of the same trials."""
+    return paired_outcomes([t["success"] for t in a["per_trial"]], [t["success"] for t in b["per_trial"]], names)
 
 
 def _evaluate_cloth_choice(
