@@ -75,6 +75,40 @@ def test_a_training_step_never_waits_for_the_device_until_its_read_back(override
     assert all(isinstance(value, float) for value in terms.values())
 
 
+def test_an_amp_step_casts_the_linear_weights_together_and_computes_the_same_step(monkeypatch):
+    """Under AMP the training pass runs on the linear layers' bf16 weights cast in one op, not one cast a layer
+    each way: the loss and every fp32 gradient must be the ones autocast's own casts give, bit for bit."""
+    policy = _small_policy(use_amp=True, num_blocks=2).train()
+    g = torch.Generator().manual_seed(5)
+    obj = torch.rand(4, 32, 3, generator=g) * 0.1
+    batch = {OBJECT_KEY: obj, SCENE_KEY: torch.rand(4, 64, 3, generator=g), ACTION_KEY: obj + 0.3}
+
+    def step(counter: LaunchCounter) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        torch.manual_seed(6)  # the same augmentations, noise and timesteps in both steps
+        policy.zero_grad(set_to_none=True)
+        with counter:
+            loss, _ = policy.forward(batch)
+            loss.backward()
+        policy.update()
+        return loss.detach(), {name: p.grad for name, p in policy.named_parameters() if p.grad is not None}
+
+    together = LaunchCounter()
+    loss, grads = step(together)
+    # The reference: autocast casting each linear layer's weights itself.
+    monkeypatch.setattr(policy, "_training_call", lambda *args, **kwargs: policy.model(*args, **kwargs))
+    per_layer = LaunchCounter()
+    reference_loss, reference_grads = step(per_layer)
+
+    assert torch.equal(loss, reference_loss)
+    assert grads.keys() == reference_grads.keys() == dict(policy.model.named_parameters(prefix="model")).keys()
+    for name, grad in grads.items():
+        assert grad.dtype == torch.float32 and torch.equal(grad, reference_grads[name]), name
+    casts = {name: sum(c["_to_copy"] for c in counter.ops.values()) for name, counter in (
+        ("together", together), ("per layer", per_layer))}  # fmt: skip
+    linear_layers = sum(isinstance(m, torch.nn.Linear) for m in policy.model.modules())
+    assert casts["per layer"] - casts["together"] >= 3 * linear_layers, casts
+
+
 @pytest.mark.parametrize("overrides", [{}, {"local_scene_points": 48}], ids=["whole-scene", "local-scene"])
 def test_sampling_reads_back_at_most_twice(overrides):
     """The input checks (values, units) are the only reads: the denoising loop waits for nothing."""
