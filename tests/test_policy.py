@@ -14,7 +14,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.processor import PolicyProcessorPipeline
 
 from conftest import install_in_hub_cache
-from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, make_taxdpd_pre_post_processors
+from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy, load_goal_predictor, make_taxdpd_pre_post_processors
 from lerobot_taxdpd.apps.synthetic import write_slot_dataset
 from lerobot_taxdpd.data.scaling import SCALE_FILE
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
@@ -183,6 +183,23 @@ def test_training_batch_with_mismatched_goal_is_rejected():
         policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene, ACTION_KEY: obj[:, :-1]})
     with pytest.raises(PointCloudError, match="action: missing"):
         policy.forward({OBJECT_KEY: obj, SCENE_KEY: scene})
+
+
+@pytest.mark.parametrize("stage", ["global_stage", "local_stage.denoiser"])
+def test_each_dit_block_gets_the_modulation_and_context_its_own_layers_give(stage):
+    """The DiT projects the condition and the normalised context for all its blocks in one product each; with a
+    shipped predictor's trained weights every block must receive exactly what its own layers would compute."""
+    dit = load_goal_predictor("mug_easyrack").model.get_submodule(stage).backbone
+    dim = dit.norm_context.normalized_shape[0]
+    g = torch.Generator().manual_seed(0)
+    tokens, context, condition = (torch.randn(*shape, generator=g) for shape in ((2, 5, dim), (2, 7, dim), (2, dim)))
+    expected = tokens
+    for block in dit.blocks:
+        keys_values = block.cross_attention.key_value(dit.norm_context(context))
+        expected = block(expected, keys_values, block.modulation(condition))
+    with torch.no_grad():
+        torch.testing.assert_close(dit(tokens, context, condition), expected, rtol=1e-5, atol=1e-5)
+    assert len(dit.blocks) > 1 and not torch.allclose(expected, tokens)  # trained blocks that act
 
 
 def test_loss_reports_each_part_and_reaches_every_parameter():
