@@ -14,7 +14,8 @@ from lerobot_taxdpd.apps.synthetic import make_slot_scene
 from lerobot_taxdpd.data.dataset_writer import DatasetCardInfo, DatasetWriter
 from lerobot_taxdpd.data.point_order import POINT_ORDER_FILE, is_farthest_point_ordered, read_point_order
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY, goal_prediction_features, placement_frame
-from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_indices
+from lerobot_taxdpd.maths.geometry import device_code_paths, farthest_point_indices, is_farthest_point_prefix
+from lerobot_taxdpd.policies.taxdpd import modeling_taxdpd
 from lerobot_taxdpd.reports.launches import LaunchCounter
 
 NUM_OBJECT, NUM_SCENE = 64, 128
@@ -34,9 +35,7 @@ def slot_frames(rng: np.random.Generator, order_scene: bool = True) -> list[dict
         scene_points = fps_reduced(scene.scene_points, NUM_SCENE)
         scene_points = scene_points if order_scene else rng.permutation(scene_points)
         frames.append(
-            placement_frame(
-                scene.object_points[keep], scene_points, scene.goal_points[keep], None, source="test"
-            )
+            placement_frame(scene.object_points[keep], scene_points, scene.goal_points[keep], None, source="test")
         )
     return frames
 
@@ -110,3 +109,49 @@ def test_a_step_on_fps_ordered_data_skips_fps_and_keeps_its_loss(tmp_path):
     assert fps_loop >= NUM_OBJECT // 4  # level-1 centres of both clouds, one loop iteration each
     assert launches_ordered.ops["other"].get("argmax", 0) == 0
     assert launches_unknown.total_ops() - launches_ordered.total_ops() >= 2 * fps_loop
+
+
+def test_the_policys_prefix_check_agrees_with_the_writers_order_check():
+    """`is_farthest_point_prefix` (parallel torch ops, what sampling uses) against the writer's check, ties
+    included; a prefix in FPS order passes at its own length whatever order the rest of the cloud is in."""
+    rng = np.random.default_rng(2)
+    cloud = fps_reduced(rng.normal(size=(900, 3)), 200)
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+    tied = np.vstack([corners[0], corners[7], corners[1:7][[3, 0, 5, 1, 4, 2]], rng.uniform(0.2, 0.8, (192, 3))])
+    clouds = [cloud, cloud[rng.permutation(200)], cloud[::-1].copy(), tied]
+    answers = is_farthest_point_prefix(torch.from_numpy(np.stack(clouds)).float(), 200).tolist()
+    assert answers == [is_farthest_point_ordered(c) for c in clouds] == [True, False, False, False]
+    assert is_farthest_point_prefix(torch.from_numpy(tied[None, :8]).float(), 8).item()  # the corners' ties
+    tail_shuffled = np.vstack([cloud[:50], cloud[50:][rng.permutation(150)]])[None]
+    assert is_farthest_point_prefix(torch.from_numpy(tail_shuffled), 50).item()
+    assert not is_farthest_point_prefix(torch.from_numpy(tail_shuffled), 200).item()
+
+
+def test_sampling_cuts_clouds_in_fps_order_to_their_prefix_with_the_same_goals(monkeypatch):
+    """Clouds as the project records them (FPS order, larger than the network's count) are cut to their prefix
+    instead of reduced by FPS, and their layouts are prefixes too: the same goals, no FPS loop, no extra read."""
+    torch.manual_seed(0)
+    config = TaxDPDConfig.for_point_clouds(
+        NUM_OBJECT, NUM_SCENE, hidden_dim=16, num_blocks=1, num_heads=2, point_scale=20.0, device="cpu"
+    )
+    policy = TaxDPDPolicy(config).eval()
+    rng = np.random.default_rng(3)
+    scene = make_slot_scene(rng, 4 * NUM_OBJECT, 4 * NUM_SCENE)
+    obj = torch.from_numpy(fps_reduced(scene.object_points, 2 * NUM_OBJECT)[None]).float()
+    scene_points = torch.from_numpy(fps_reduced(scene.scene_points, 2 * NUM_SCENE)[None]).float()
+
+    def sample(counter: LaunchCounter) -> torch.Tensor:
+        with device_code_paths(), counter:
+            return policy.sample_goals(obj, scene_points, 4, generator=torch.Generator().manual_seed(4))
+
+    cut = LaunchCounter()
+    goals_cut = sample(cut)
+    monkeypatch.setattr(
+        modeling_taxdpd, "is_farthest_point_prefix", lambda points, count: torch.zeros(1, dtype=torch.bool)
+    )
+    reduced = LaunchCounter()
+    goals_reduced = sample(reduced)
+    torch.testing.assert_close(goals_cut, goals_reduced)
+    assert cut.ops["other"].get("argmax", 0) == 0 and reduced.ops["other"]["argmax"] >= NUM_SCENE - 1
+    assert cut.total_syncs() <= 2 and reduced.total_syncs() <= 2
+    print(f"\nK = 4 call: {reduced.total_ops()} ops with FPS -> {cut.total_ops()} on clouds in FPS order")

@@ -125,6 +125,21 @@ def farthest_point_sample_parts(
     return [chosen[:, :count] for chosen, count in zip(indices, counts, strict=True)]
 
 
+def is_farthest_point_prefix(points: Tensor, count: int, tolerance: float = 1e-6) -> Tensor:
+    """(B, N, 3) -> (B,) bool: is each cloud's prefix of `count` points its FPS from point 0 (up to ties within
+    the relative `tolerance`), i.e. is every point i < count a farthest point of the cloud from points 0..i-1?
+
+    A cloud recorded in FPS order passes, and its prefix then serves as its reduction and its layout. Checking
+    an order is a handful of parallel ops (distances to the prefix, their running minimum down the prefix),
+    where finding one is a loop of `count` steps: on a GPU, 3 * `count` launches."""
+    if count <= 1:
+        return torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+    distances = torch.cdist(points[:, : count - 1], points, compute_mode="donot_use_mm_for_euclid_dist")
+    nearest = distances.cummin(1).values  # [b, i, j]: from point j to the nearest of points 0..i
+    chosen = nearest.diagonal(offset=1, dim1=1, dim2=2)  # [b, i]: point i + 1's, which FPS must pick next
+    return (chosen >= nearest.amax(-1) * (1 - tolerance)).all(-1)
+
+
 def farthest_point_indices(points: ArrayLike, num_samples: int, start_index: int = 0) -> np.ndarray:
     """Indices of `num_samples` farthest points of one (N, 3) cloud, for data conversion.
 

@@ -35,9 +35,11 @@ from lerobot_taxdpd.data.validation import (
     value_faults,
 )
 from lerobot_taxdpd.maths.geometry import (
+    FPS_DISTANCE_TABLE_BYTES,
     estimate_rigid_transform,
     farthest_point_sample_parts,
     gather_points,
+    is_farthest_point_prefix,
     lift_point_motion,
     nearest_indices,
     nearest_points,
@@ -398,8 +400,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         if not isinstance(sampler, str) or sampler not in SAMPLER_ETA:
             raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
         eta = SAMPLER_ETA[sampler]
-        model_object, model_scene, fps_ordered = self._at_model_resolution(object_points, scene_points)
-        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
+        model_object, model_scene, fps_ordered, radius = self._at_model_resolution(object_points, scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points, radius=radius))
         if placement_frames is not None:  # where the object's centroid goes -> where the model's subsample's goes
             shift = model_object.mean(1) - object_points.mean(1)
             placement_frames = frame.to_model((placement_frames + shift).unsqueeze(1)).squeeze(1)
@@ -441,8 +443,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     def placement_distribution(self, object_points: Tensor, scene_points: Tensor) -> tuple[Tensor, Tensor]:
         """The Dense GMM: mixing weights (B, N_S) over scene points and component means (B, N_S, 3), metres."""
         object_points, scene_points = self._checked_inputs(object_points, scene_points)
-        model_object, model_scene, _ = self._at_model_resolution(object_points, scene_points)
-        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points))
+        model_object, model_scene, _, radius = self._at_model_resolution(object_points, scene_points)
+        frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points, radius=radius))
         with self._autocast():
             weights, means = self.inference_model.placement_distribution(
                 frame.to_model(model_object), frame.to_model(model_scene)
@@ -478,7 +480,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     def _training_call(self, *args, **kwargs) -> dict[str, Tensor]:
         """The model's losses; under AMP with gradients on, its linear layers cast to bf16 together
-        (`call_with_linears_cast`: the same step for four launches instead of four a layer)."""
+        (`call_with_linears_cast`: the same step, with four casts in all instead of four a layer)."""
         if self.config.use_amp and torch.is_grad_enabled():
             return call_with_linears_cast(self.model, torch.bfloat16, *args, **kwargs)
         return self.model(*args, **kwargs)
@@ -490,21 +492,52 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     def _at_model_resolution(
         self, object_points: Tensor, scene_points: Tensor
-    ) -> tuple[Tensor, Tensor, tuple[bool, bool]]:
-        """The clouds at the network's point counts (deterministic FPS, from point 0), and which of the two were
-        reduced, so are in FPS order (their layout is then free).
+    ) -> tuple[Tensor, Tensor, tuple[bool, bool], float]:
+        """The clouds at the network's point counts, whether each is in FPS order from its point 0 (its layout is
+        then free), and the objects' median radius in metres.
 
-        The network is trained at `num_*_points`; feeding it denser clouds would change every PointNet++
-        neighbourhood and cost attention quadratically, so inference sees the same resolution as training.
+        A cloud whose first points are its FPS from point 0 (every cloud this project records is in that order:
+        `is_farthest_point_prefix` checks it in a few parallel ops) is cut to them; any other cloud larger than
+        the network's count is reduced by FPS from point 0, the same points. The check's answers and the radius
+        come back from the device in one read. The network is trained at `num_*_points`; feeding it denser
+        clouds would change every PointNet++ neighbourhood and cost attention quadratically, so inference sees
+        the same resolution as training.
         """
-        clouds, keeps = self._reduced(object_points, scene_points, farthest_point_sample_parts)
-        return clouds[0], clouds[1], (keeps[0] is not None, keeps[1] is not None)
+        clouds = [object_points, scene_points]
+        sizes = [
+            min(self.config.num_object_points, object_points.shape[1]),
+            min(self.config.num_scene_points, scene_points.shape[1]),
+        ]
+        checked = [
+            cloud.shape[0] * size * cloud.shape[1] * 4 <= FPS_DISTANCE_TABLE_BYTES
+            for cloud, size in zip(clouds, sizes, strict=True)
+        ]
+        answers = [object_radius(object_points.double()).median().reshape(1)]
+        answers += [
+            is_farthest_point_prefix(cloud.float(), size).all().reshape(1).double()
+            for cloud, size, check in zip(clouds, sizes, checked, strict=True)
+            if check
+        ]
+        radius, *prefix_answers = torch.cat(answers).tolist()
+        in_order = iter(prefix_answers)
+        ordered = [check and bool(next(in_order)) for check in checked]
+        unordered = [i for i, cloud in enumerate(clouds) if not ordered[i] and cloud.shape[1] > sizes[i]]
+        if unordered:
+            picked = farthest_point_sample_parts([clouds[i].float() for i in unordered], [sizes[i] for i in unordered])
+            for i, keep in zip(unordered, picked, strict=True):
+                clouds[i] = gather_points(clouds[i], keep)
+        clouds = [
+            cloud[:, :size] if is_ordered else cloud
+            for cloud, size, is_ordered in zip(clouds, sizes, ordered, strict=True)
+        ]
+        fps_ordered = tuple(ordered[i] or i in unordered for i in range(2))
+        return clouds[0], clouds[1], fps_ordered, radius
 
     def _reduced(
         self, object_points: Tensor, scene_points: Tensor, sample: Callable[[list[Tensor], list[int]], list[Tensor]]
     ) -> tuple[list[Tensor], list[Tensor | None]]:
         """Object and scene, each larger than the network's point count reduced by `sample` (an FPS of several
-        clouds in one pass: random starts in training, point 0 at inference); the indices each kept (None: whole)."""
+        clouds in one pass, from random starts: an augmentation); the indices each kept (None: whole)."""
         clouds = [object_points, scene_points]
         sizes = [self.config.num_object_points, self.config.num_scene_points]
         keeps: list[Tensor | None] = [None, None]
@@ -515,10 +548,13 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 clouds[i], keeps[i] = gather_points(clouds[i], keep), keep
         return clouds, keeps
 
-    def _point_scale(self, object_points: Tensor, name: str = "object_points") -> float:
+    def _point_scale(self, object_points: Tensor, name: str = "object_points", radius: float | None = None) -> float:
+        """Model units per metre; `radius`: the objects' median radius, when the caller has read it already."""
+        if radius is None and (self.config.point_scale is None or not self.training):
+            radius = float(object_radius(object_points.double()).median())
         if self.config.point_scale is not None:
             if not self.training:  # a training step checks the units at its read-back
-                self._warn_units(float(object_radius(object_points.double()).median()), name)
+                self._warn_units(radius, name)
             return self.config.point_scale
         if not self._warned_scale:
             logger.warning(
@@ -526,7 +562,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 "object radius. Set point_scale or train on a dataset to fix it."
             )
             self._warned_scale = True
-        return self.config.object_scale / float(object_radius(object_points.double()).median().clamp_min(1e-9))
+        return self.config.object_scale / max(radius, 1e-9)
 
     def _warn_units(self, radius: float, name: str) -> None:
         """Warn when the objects (median radius, metres) are far larger or smaller than the ones this checkpoint
