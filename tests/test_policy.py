@@ -19,6 +19,7 @@ from lerobot_taxdpd.apps.synthetic import write_slot_dataset
 from lerobot_taxdpd.data.scaling import SCALE_FILE
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.data.validation import PointCloudError
+from lerobot_taxdpd.policies.mixed_precision import cpu_bf16_speedup
 from lerobot_taxdpd.sim.pretrain import save_shipped
 
 N_O, N_S = 32, 64
@@ -200,6 +201,18 @@ def test_each_dit_block_gets_the_modulation_and_context_its_own_layers_give(stag
     with torch.no_grad():
         torch.testing.assert_close(dit(tokens, context, condition), expected, rtol=1e-5, atol=1e-5)
     assert len(dit.blocks) > 1 and not torch.allclose(expected, tokens)  # trained blocks that act
+
+
+def test_amp_on_a_cpu_whose_bf16_is_slow_warns_with_the_measured_ratio():
+    """Whether bf16 pays is measured on this CPU: a policy built with use_amp to run on it warns exactly when
+    its bf16 products are slower than its fp32 ones, and a policy without use_amp never does."""
+    speedup = cpu_bf16_speedup()
+    print(f"\nbf16 matrix products on this CPU: {speedup:.2f}x the speed of fp32 ones")
+    for use_amp, expected in ((True, speedup < 1.0), (False, False)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            tiny_policy(use_amp=use_amp)
+        assert any("use_amp=true" in str(w.message) for w in caught) == expected, use_amp
 
 
 def test_loss_reports_each_part_and_reaches_every_parameter():

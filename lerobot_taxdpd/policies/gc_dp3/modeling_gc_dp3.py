@@ -26,6 +26,7 @@ from lerobot_taxdpd.policies.checkpoints import CheckedLoading
 from lerobot_taxdpd.policies.ema import EmaWeights
 from lerobot_taxdpd.policies.gc_dp3.configuration_gc_dp3 import GcDp3Config
 from lerobot_taxdpd.policies.gc_dp3.model_card import render_model_card
+from lerobot_taxdpd.policies.mixed_precision import warn_if_amp_is_slow
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 
 
@@ -144,6 +145,7 @@ class GcDp3Policy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     def __init__(self, config: GcDp3Config, dataset_stats: dict | None = None, **kwargs) -> None:
         super().__init__(config)
         config.validate_features()
+        warn_if_amp_is_slow(config)
         config.derive_cloud_frame(dataset_stats)
         self.config = config
         self.model = GcDp3Model(config)

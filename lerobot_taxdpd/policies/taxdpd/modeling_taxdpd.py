@@ -46,7 +46,7 @@ from lerobot_taxdpd.maths.geometry import (
 )
 from lerobot_taxdpd.policies.checkpoints import CheckedLoading
 from lerobot_taxdpd.policies.ema import EmaWeights
-from lerobot_taxdpd.policies.mixed_precision import call_with_linears_cast
+from lerobot_taxdpd.policies.mixed_precision import call_with_linears_cast, warn_if_amp_is_slow
 from lerobot_taxdpd.policies.model_cards import load_metrics, save_metrics
 from lerobot_taxdpd.policies.taxdpd.augmentation import (
     ball_cut,
@@ -257,6 +257,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
     def __init__(self, config: TaxDPDConfig, dataset_stats=None, dataset_meta=None, **kwargs) -> None:
         super().__init__(config)
         config.validate_features()
+        warn_if_amp_is_slow(config)
         if config.point_scale is None and dataset_meta is not None:
             config.point_scale = estimate_point_scale(dataset_meta.root, config.object_scale)
         # Whether the training data's object and scene clouds are in FPS order (the dataset's metadata says so):
