@@ -218,6 +218,38 @@ def test_a_denser_scene_is_observed_when_asked_and_the_benchmark_still_holds(tmp
     assert "--scene-cloud-size: only applies to a rigid task" in capsys.readouterr().err
 
 
+class SamplingSettingsOf:
+    """A user's own predictor around a shipped one (other sampling settings): it states its training clouds only
+    through the policy's `config` it exposes."""
+
+    def __init__(self, name: str, **settings):
+        from lerobot_taxdpd import load_goal_predictor
+
+        self.policy = load_goal_predictor(name)
+        self.config, self.settings = self.policy.config, settings
+
+    def sample_goals(self, object_points, scene_points, num_samples, **kwargs):
+        return self.policy.sample_goals(object_points, scene_points, num_samples, **(kwargs | self.settings))
+
+
+def multi_socket_with_twenty_steps() -> SamplingSettingsOf:
+    return SamplingSettingsOf("insert_waterproof_multi", num_inference_steps=20)
+
+
+def test_a_predictor_given_by_factory_sees_scenes_as_dense_as_it_was_trained_on(tmp_path):
+    """`--predictor module:factory` is observed like `--goal-policy.path`: a wrapper of the shipped multi-socket
+    connector (trained on 4096-point scenes, whose local stage crops them) is shown 4096-point scenes, not the
+    task's 1024 (on which the same predictor placed none of 100); an explicit `--scene-cloud-size` still wins."""
+    factory = "test_sim_harness:multi_socket_with_twenty_steps"
+    base = ["eval", "--task", "insert_waterproof_multi", "--predictor", factory, "--trials", "2", "--num-samples", "2",
+            "--figures", "0"]  # fmt: skip
+    assert main([*base, "--output", str(tmp_path / "as_trained")]) == 0
+    report = json.loads((tmp_path / "as_trained" / "insert_waterproof_multi_eval.json").read_text())
+    assert report["scene_points"] == 4096 and report["translation_error_mm"]["median"] < 2.0
+    assert main([*base, "--scene-cloud-size", "2048", "--output", str(tmp_path / "asked")]) == 0
+    assert json.loads((tmp_path / "asked" / "insert_waterproof_multi_eval.json").read_text())["scene_points"] == 2048
+
+
 def test_command_line_errors_name_the_argument(tmp_path, capsys):
     assert (
         main(

@@ -472,6 +472,9 @@ def _evaluate(args: argparse.Namespace) -> int:
             ) from error
         _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
         task = observed_as_trained(task, predictor)
+    elif not oracle:
+        predictor = load_predictor(args.predictor)
+        task = observed_as_trained(task, predictor)  # a predictor with a policy's config states its scene size
     task = task.with_scene_cloud_size(args.observed_scene_cloud_size)
     trials = (make_trial(task, seed, args.split) for seed in seeds)
     if oracle or args.placement_frames:  # both answer from the trials' ground truth, so they need them first
@@ -480,8 +483,6 @@ def _evaluate(args: argparse.Namespace) -> int:
         predictor = OraclePredictor(trials, oracle_error_mm / 1000, oracle_error_deg, seed=args.seed)
     elif args.placement_frames:
         predictor = TrueFramePredictor(predictor, trials)
-    elif not goal_policy_path:
-        predictor = load_predictor(args.predictor)
     output = args.output or OUTPUT["rigid"]
     selection, _, scorer = _scorer_selection(args, goal_policy_path)
     report = evaluate(
