@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lerobot_taxdpd.data.point_order import ORDER_TOLERANCE
 from lerobot_taxdpd.data.validation import check_point_cloud, check_same_shape
 
 ArrayLike = Tensor | np.ndarray
@@ -125,15 +126,16 @@ def farthest_point_sample_parts(
     return [chosen[:, :count] for chosen, count in zip(indices, counts, strict=True)]
 
 
-def is_farthest_point_prefix(points: Tensor, count: int, tolerance: float = 1e-6) -> Tensor:
+def is_farthest_point_prefix(points: Tensor, count: int, tolerance: float = ORDER_TOLERANCE) -> Tensor:
     """(B, N, 3) -> (B,) bool: is each cloud's prefix of `count` points its FPS from point 0 (up to ties within
     the relative `tolerance`), i.e. is every point i < count a farthest point of the cloud from points 0..i-1?
 
     A cloud recorded in FPS order passes, and its prefix then serves as its reduction and its layout. Checking
     an order is a handful of parallel ops (distances to the prefix, their running minimum down the prefix),
-    where finding one is a loop of `count` steps: on a GPU, 3 * `count` launches."""
-    if count <= 1:
-        return torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+    where finding one is a loop of `count` steps: on a GPU, 3 * `count` launches. Clouds whose (B, count, N)
+    distances would exceed `FPS_DISTANCE_TABLE_BYTES` are answered False (unchecked: treated as unordered)."""
+    if count <= 1 or points.shape[0] * count * points.shape[1] * points.element_size() > FPS_DISTANCE_TABLE_BYTES:
+        return torch.full((points.shape[0],), count <= 1, dtype=torch.bool, device=points.device)
     distances = torch.cdist(points[:, : count - 1], points, compute_mode="donot_use_mm_for_euclid_dist")
     nearest = distances.cummin(1).values  # [b, i, j]: from point j to the nearest of points 0..i
     chosen = nearest.diagonal(offset=1, dim1=1, dim2=2)  # [b, i]: point i + 1's, which FPS must pick next

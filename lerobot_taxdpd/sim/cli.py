@@ -471,10 +471,10 @@ def _evaluate(args: argparse.Namespace) -> int:
                 f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
         _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
-        task = observed_as_trained(task, predictor)
     elif not oracle:
         predictor = load_predictor(args.predictor)
-        task = observed_as_trained(task, predictor)  # a predictor with a policy's config states its scene size
+    if not oracle:  # a predictor with a policy's config states its scene size, whichever way it was given
+        task = observed_as_trained(task, predictor)
     task = task.with_scene_cloud_size(args.observed_scene_cloud_size)
     trials = (make_trial(task, seed, args.split) for seed in seeds)
     if oracle or args.placement_frames:  # both answer from the trials' ground truth, so they need them first

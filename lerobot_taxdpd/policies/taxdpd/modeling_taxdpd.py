@@ -35,7 +35,6 @@ from lerobot_taxdpd.data.validation import (
     value_faults,
 )
 from lerobot_taxdpd.maths.geometry import (
-    FPS_DISTANCE_TABLE_BYTES,
     estimate_rigid_transform,
     farthest_point_sample_parts,
     gather_points,
@@ -509,19 +508,13 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             min(self.config.num_object_points, object_points.shape[1]),
             min(self.config.num_scene_points, scene_points.shape[1]),
         ]
-        checked = [
-            cloud.shape[0] * size * cloud.shape[1] * 4 <= FPS_DISTANCE_TABLE_BYTES
-            for cloud, size in zip(clouds, sizes, strict=True)
-        ]
         answers = [object_radius(object_points.double()).median().reshape(1)]
         answers += [
             is_farthest_point_prefix(cloud.float(), size).all().reshape(1).double()
-            for cloud, size, check in zip(clouds, sizes, checked, strict=True)
-            if check
+            for cloud, size in zip(clouds, sizes, strict=True)
         ]
-        radius, *prefix_answers = torch.cat(answers).tolist()
-        in_order = iter(prefix_answers)
-        ordered = [check and bool(next(in_order)) for check in checked]
+        radius, *in_order = torch.cat(answers).tolist()
+        ordered = [bool(answer) for answer in in_order]
         unordered = [i for i, cloud in enumerate(clouds) if not ordered[i] and cloud.shape[1] > sizes[i]]
         if unordered:
             picked = farthest_point_sample_parts([clouds[i].float() for i in unordered], [sizes[i] for i in unordered])
@@ -534,17 +527,15 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         fps_ordered = tuple(ordered[i] or i in unordered for i in range(2))
         return clouds[0], clouds[1], fps_ordered, radius
 
-    def _reduced(
-        self, object_points: Tensor, scene_points: Tensor, sample: Callable[[list[Tensor], list[int]], list[Tensor]]
-    ) -> tuple[list[Tensor], list[Tensor | None]]:
-        """Object and scene, each larger than the network's point count reduced by `sample` (an FPS of several
-        clouds in one pass, from random starts: an augmentation); the indices each kept (None: whole)."""
+    def _reduced(self, object_points: Tensor, scene_points: Tensor) -> tuple[list[Tensor], list[Tensor | None]]:
+        """Object and scene, each larger than the network's point count reduced by FPS from random starts (one
+        pass for both; an augmentation); the indices each kept (None: whole)."""
         clouds = [object_points, scene_points]
         sizes = [self.config.num_object_points, self.config.num_scene_points]
         keeps: list[Tensor | None] = [None, None]
         reduced = [i for i, cloud in enumerate(clouds) if cloud.shape[1] > sizes[i]]
         if reduced:
-            picked = sample([clouds[i].float() for i in reduced], [sizes[i] for i in reduced])
+            picked = downsample_indices([clouds[i] for i in reduced], [sizes[i] for i in reduced])
             for i, keep in zip(reduced, picked, strict=True):
                 clouds[i], keeps[i] = gather_points(clouds[i], keep), keep
         return clouds, keeps
@@ -659,9 +650,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             object_points, goal_points = gather_points(object_points, keep), gather_points(goal_points, keep)
         if config.scene_occlusion_prob > 0:
             scene_points = gather_points(scene_points, ball_cut(scene_points, config.scene_occlusion_prob))
-        (model_object, model_scene), (object_keep, scene_keep) = self._reduced(
-            object_points, scene_points, downsample_indices
-        )
+        (model_object, model_scene), (object_keep, scene_keep) = self._reduced(object_points, scene_points)
         if object_keep is not None:
             goal_points = gather_points(goal_points, object_keep)
         object_recorded, scene_recorded = self.training_clouds_fps_ordered
