@@ -197,10 +197,31 @@ def test_each_dit_block_gets_the_modulation_and_context_its_own_layers_give(stag
     expected = tokens
     for block in dit.blocks:
         keys_values = block.cross_attention.key_value(dit.norm_context(context))
-        expected = block(expected, keys_values, block.modulation(condition))
+        expected = block(expected, keys_values, block.modulation_of(condition))
     with torch.no_grad():
         torch.testing.assert_close(dit(tokens, context, condition), expected, rtol=1e-5, atol=1e-5)
     assert len(dit.blocks) > 1 and not torch.allclose(expected, tokens)  # trained blocks that act
+
+
+def test_a_dit_block_computes_adaln_zero_as_written():
+    """The fused multiply-adds of a block (`addcmul`, the scales' 1 added once) compute the adaLN-Zero block
+    written out op by op, with a shipped predictor's trained weights."""
+    block = load_goal_predictor("mug_easyrack").model.local_stage.denoiser.backbone.blocks[0]
+    dim = block.norm_self.normalized_shape[0]
+    g = torch.Generator().manual_seed(1)
+    x, context, condition = (torch.randn(*shape, generator=g) for shape in ((2, 5, dim), (2, 7, dim), (2, dim)))
+    keys_values = block.cross_attention.key_value(context)
+    shift1, scale1, gate1, shift2, scale2, gate2, shift3, scale3, gate3 = (
+        m.unsqueeze(1) for m in block.modulation(condition).chunk(9, dim=-1)
+    )
+    with torch.no_grad():
+        h = block.norm_self(x) * (1 + scale1) + shift1
+        expected = x + gate1 * block.self_attention(h, h)
+        h = block.norm_cross(expected) * (1 + scale2) + shift2
+        expected = expected + gate2 * block.cross_attention.attend(h, keys_values)
+        expected = expected + gate3 * block.mlp(block.norm_mlp(expected) * (1 + scale3) + shift3)
+        torch.testing.assert_close(block(x, keys_values, block.modulation_of(condition)), expected)
+    assert not torch.allclose(expected, x)
 
 
 def test_amp_on_a_cpu_whose_bf16_is_slow_warns_with_the_measured_ratio():
