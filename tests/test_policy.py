@@ -155,6 +155,7 @@ def test_bad_input_names_the_argument(obj, scene, message):
         ({"num_inference_steps": 0}, "num_inference_steps: must divide num_train_timesteps=100"),
         ({"num_inference_steps": 7}, "got 7"),
         ({"num_samples": 0}, "num_samples: must be a positive integer"),
+        ({"gmm_frames": "mode"}, r"gmm_frames: must be one of \['components', 'modes'\], got 'mode'"),
     ],
 )
 def test_bad_sampling_options_name_the_option(options, message):
@@ -201,6 +202,45 @@ def test_each_dit_block_gets_the_modulation_and_context_its_own_layers_give(stag
     with torch.no_grad():
         torch.testing.assert_close(dit(tokens, context, condition), expected, rtol=1e-5, atol=1e-5)
     assert len(dit.blocks) > 1 and not torch.allclose(expected, tokens)  # trained blocks that act
+
+
+def test_gmm_frames_at_modes_climb_to_the_peak_of_the_slot_they_were_drawn_at():
+    """gmm_frames="modes": frames drawn at any of the components scattered over one slot all end at the peak of
+    the mixture's density there, each at a density no lower than where it started; components of another slot
+    go to that slot's peak."""
+    gmm = tiny_policy(gmm_frames="modes").model.global_stage
+    sigma = gmm.variance**0.5
+    g = torch.Generator().manual_seed(0)
+    slots = torch.tensor([[0.0, 0.0, 0.0], [6 * sigma, 0.0, 0.0]])
+    means = (slots.repeat_interleave(20, 0) + 0.3 * sigma * torch.randn(40, 3, generator=g)).unsqueeze(0)
+    weights = torch.softmax(torch.randn(1, 40, generator=g), -1)
+
+    def density(points: torch.Tensor) -> torch.Tensor:
+        d2 = (points.unsqueeze(2) - means.unsqueeze(1)).square().sum(-1)
+        return (weights.unsqueeze(1) * torch.exp(-0.5 * d2 / gmm.variance)).sum(-1)
+
+    peaks = gmm.climb_to_modes(means, weights, means)
+    assert (density(peaks) >= density(means) * (1 - 1e-6)).all()
+    for slot in (peaks[0, :20], peaks[0, 20:]):
+        assert (slot - slot.mean(0)).norm(dim=-1).max() < 1e-3 * sigma  # one point per slot, from 0.3 sigma apart
+    assert (peaks[0, :20].mean(0) - peaks[0, 20:].mean(0)).norm() > 5 * sigma  # the slots are not merged
+    assert not torch.allclose(peaks, means)
+
+
+def test_a_policy_samples_its_frames_as_configured_or_as_asked():
+    """Each way of drawing the frames gives goals of its own from the same random draws, the config's way unless
+    a call asks for the other."""
+    obj, scene = clouds(1)
+    goals = {
+        (frames, asked): tiny_policy(gmm_frames=frames).sample_goals(
+            obj, scene, 4, generator=torch.Generator().manual_seed(0), gmm_frames=asked
+        )
+        for frames in ("components", "modes")
+        for asked in (None, "components", "modes")
+    }
+    torch.testing.assert_close(goals["components", None], goals["modes", "components"])
+    torch.testing.assert_close(goals["modes", None], goals["components", "modes"])
+    assert not torch.allclose(goals["components", None], goals["modes", None])
 
 
 def test_a_dit_block_computes_adaln_zero_as_written():

@@ -250,6 +250,22 @@ def test_a_predictor_given_by_factory_sees_scenes_as_dense_as_it_was_trained_on(
     assert json.loads((tmp_path / "asked" / "insert_waterproof_multi_eval.json").read_text())["scene_points"] == 2048
 
 
+def test_eval_draws_the_frames_the_way_it_is_asked_and_says_which(tmp_path, capsys):
+    """`--goal-policy.gmm-frames modes` samples the shipped book predictor's frames at its mixture's peaks: other
+    goals from the same scenes and draws, and the report says which way they were drawn."""
+    base = ["eval", "--task", "book_shelf", "--goal-policy.path", "book_shelf", "--trials", "2", "--num-samples", "2",
+            "--figures", "0"]  # fmt: skip
+    reports = {}
+    for frames in ("components", "modes"):
+        assert main([*base, "--goal-policy.gmm-frames", frames, "--output", str(tmp_path / frames)]) == 0
+        reports[frames] = json.loads((tmp_path / frames / "book_shelf_eval.json").read_text())
+        assert reports[frames]["gmm_frames"] == frames
+    errors = {f: [t["translation_error_mm"] for t in r["per_trial"]] for f, r in reports.items()}
+    assert errors["components"] != errors["modes"]
+    assert main(["eval", "--task", "book_shelf", "--predictor", "oracle", "--goal-policy.gmm-frames", "modes"]) == 1
+    assert "--goal-policy.gmm-frames: only applies to a TAX-DPD goal predictor" in capsys.readouterr().err
+
+
 def test_command_line_errors_name_the_argument(tmp_path, capsys):
     assert (
         main(

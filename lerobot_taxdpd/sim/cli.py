@@ -22,6 +22,7 @@ from pathlib import Path
 from lerobot_taxdpd.cli_options import add_deprecated_alias, add_search_arguments, with_search
 from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.selection import GOAL_SELECTIONS
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import GMM_FRAMES
 from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
@@ -30,6 +31,7 @@ OUTPUT = {"rigid": Path("outputs/sim_eval"), CLOTH_TASK: Path("outputs/eval/clot
 RIGID_ONLY = {
     "predictor": "--predictor",
     "placement_frames": "--placement-frames",
+    "gmm_frames": "--goal-policy.gmm-frames",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
     "observed_scene_cloud_size": "--scene-cloud-size",
@@ -150,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="--goal-policy.path only: 'true' samples every goal at the true placement frame (the demonstrated "
         "goal's centroid) instead of the Dense GMM's, to measure the local stage alone (default: the GMM's)",
+    )
+    rigid.add_argument(
+        "--goal-policy.gmm-frames",
+        dest="gmm_frames",
+        choices=GMM_FRAMES,
+        default=None,
+        help="--goal-policy.path only: how the Dense GMM's frames are drawn, at a component's mean (as published) "
+        "or moved to the peak of the mixture's density it lies under (default: the checkpoint's gmm_frames)",
     )
     rigid.add_argument(
         "--scene-cloud-size",
@@ -461,8 +471,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     oracle_error_mm, oracle_error_deg = args.oracle_error_mm or 0.0, args.oracle_error_deg or 0.0
     if not oracle and (oracle_error_mm or oracle_error_deg):
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
-    if args.placement_frames and not goal_policy_path:
-        raise ValueError("--placement-frames: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
+    for given, flag in ((args.placement_frames, "--placement-frames"), (args.gmm_frames, "--goal-policy.gmm-frames")):
+        if given and not goal_policy_path:
+            raise ValueError(f"{flag}: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
     if goal_policy_path:
         try:
             predictor = load_goal_predictor(goal_policy_path, device=args.device)
@@ -471,6 +482,9 @@ def _evaluate(args: argparse.Namespace) -> int:
                 f"--goal-policy.path {goal_policy_path}: not a loadable TAX-DPD checkpoint ({error})"
             ) from error
         _warn_if_trained_for_another_task(predictor, goal_policy_path, task.name)
+        if args.gmm_frames:
+            predictor.config.gmm_frames = args.gmm_frames
+        gmm_frames = predictor.config.gmm_frames
     elif not oracle:
         predictor = load_predictor(args.predictor)
     if not oracle:  # a predictor with a policy's config states its scene size, whichever way it was given
@@ -501,6 +515,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         report["scorer"] = args.scorer_path or goal_policy_path
     if args.placement_frames:
         report["placement_frames"] = args.placement_frames
+    if goal_policy_path:
+        report["gmm_frames"] = gmm_frames
     path = write_json(output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(

@@ -34,6 +34,7 @@ SAMPLERS = ("ddim", "ddpm")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 COMPILE_MODES = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 ROTATION_NOISES = ("paper", "signal")
+GMM_FRAMES = ("components", "modes")
 
 
 def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
@@ -95,6 +96,11 @@ class TaxDPDConfig(PreTrainedConfig):
     gmm_variance: float = 0.3  # fixed component variance (model units^2)
     gmm_uniform_weight: float = 0.1  # weight of the NLL under uniform mixing weights (keeps components useful)
     gmm_batch_fraction: float = 1.0  # share of each batch the Dense GMM trains on (it converges early)
+    # Where a sample's placement frame comes from: "components", the mean of a component drawn by its weight
+    # (as published); "modes", that mean moved uphill to the peak of the mixture's density it lies under
+    # (mean shift at the components' own width), so that the frames of the components that share a slot
+    # agree on its most likely point instead of scattering around it. Sampling only: training is the same.
+    gmm_frames: str = "components"
 
     # ---- local stage: disentangled DDPM
     num_train_timesteps: int = 100
@@ -210,6 +216,8 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError("local_scene_with_whole: needs local_scene_points > 0 (the crop it is seen beside)")
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
+        if self.gmm_frames not in GMM_FRAMES:
+            raise ValueError(f"gmm_frames: must be one of {GMM_FRAMES}, got {self.gmm_frames!r}")
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if self.sampler not in SAMPLERS:

@@ -54,7 +54,7 @@ from lerobot_taxdpd.policies.taxdpd.augmentation import (
     random_start_pose,
     random_z_rotation,
 )
-from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import TaxDPDConfig, check_inference_steps
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import GMM_FRAMES, TaxDPDConfig, check_inference_steps
 from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
@@ -177,10 +177,11 @@ class TaxDPDModel(nn.Module):
         frames: Tensor | None = None,
         fps_ordered: tuple[bool, bool] = (False, False),
         dense_scene: Tensor | None = None,
+        gmm_frames: str = "components",
     ) -> Tensor:
         """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3). `frames` (B, 3), when given, are the
-        placement frames of every sample instead of the Dense GMM's; `fps_ordered` and `dense_scene` as in
-        `forward`."""
+        placement frames of every sample instead of the Dense GMM's; `gmm_frames` says how the Dense GMM's
+        are drawn (`TaxDPDConfig.gmm_frames`); `fps_ordered` and `dense_scene` as in `forward`."""
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
         layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
@@ -193,6 +194,8 @@ class TaxDPDModel(nn.Module):
                 probabilities = probabilities.to(generator.device)
             component = torch.multinomial(probabilities, num_samples, replacement=True, generator=generator)
             frames = gather_points(means.float(), component.to(means.device))
+            if gmm_frames == "modes":
+                frames = self.global_stage.climb_to_modes(frames, probabilities.to(means.device), means)
         else:
             frames = scene_points.new_zeros(b, num_samples, 3)
         frames = frames.reshape(b * num_samples, 3)
@@ -352,14 +355,16 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         *,
         num_inference_steps: int | None = None,
         sampler: str | None = None,
+        gmm_frames: str | None = None,
         generator: torch.Generator | None = None,
         placement_frames=None,
     ) -> Tensor:
         """Sample goal clouds: object (B, N_O, 3), scene (B, N_S, 3) in metres -> (B, K, N_O, 3).
 
         Tensors or numpy arrays are accepted; the answer is a float32 tensor on the policy's device.
-        Row i of each sample is where point i of the object should go. `num_inference_steps` and
-        `sampler` ("ddim" or "ddpm") default to the config's; `generator` makes sampling reproducible.
+        Row i of each sample is where point i of the object should go. `num_inference_steps`, `sampler`
+        ("ddim" or "ddpm") and `gmm_frames` ("components" or "modes", see `TaxDPDConfig.gmm_frames`)
+        default to the config's; `generator` makes sampling reproducible.
         `placement_frames` (B, 3), metres: where the object's centroid goes, given instead of sampled from
         the Dense GMM, so the local stage alone is measured (e.g. at the true goal's centroid).
         """
@@ -370,6 +375,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             num_samples,
             num_inference_steps=num_inference_steps,
             sampler=sampler,
+            gmm_frames=gmm_frames,
             generator=generator,
             placement_frames=placement_frames,
         )
@@ -382,6 +388,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         *,
         num_inference_steps: int | None = None,
         sampler: str | None = None,
+        gmm_frames: str | None = None,
         generator: torch.Generator | None = None,
         placement_frames=None,
     ) -> Tensor:
@@ -400,6 +407,9 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         if not isinstance(sampler, str) or sampler not in SAMPLER_ETA:
             raise ValueError(f"sampler: must be one of {sorted(SAMPLER_ETA)}, got {sampler!r}")
         eta = SAMPLER_ETA[sampler]
+        gmm_frames = self.config.gmm_frames if gmm_frames is None else gmm_frames
+        if gmm_frames not in GMM_FRAMES:
+            raise ValueError(f"gmm_frames: must be one of {list(GMM_FRAMES)}, got {gmm_frames!r}")
         model_object, model_scene, fps_ordered, radius = self._at_model_resolution(object_points, scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points, radius=radius))
         if placement_frames is not None:  # where the object's centroid goes -> where the model's subsample's goes
@@ -416,6 +426,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 frames=placement_frames,
                 fps_ordered=fps_ordered,
                 dense_scene=frame.to_model(scene_points) if self.config.local_scene_points else None,
+                gmm_frames=gmm_frames,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:

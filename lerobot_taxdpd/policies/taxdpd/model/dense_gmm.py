@@ -53,6 +53,21 @@ class DenseGMM(nn.Module):
         out = self.head(self.backbone(scene_tokens, object_tokens, condition), condition).float()
         return out[..., 0], scene_centred + out[..., 1:]
 
+    def climb_to_modes(self, start: Tensor, weights: Tensor, means: Tensor, iterations: int = 10) -> Tensor:
+        """Points (B, K, 3) moved uphill to the peaks of the mixture's density (weights (B, M), means (B, M, 3)).
+
+        Mean shift with the components' own Gaussians: each step moves a point to the average of the means,
+        each weighted by its mixing weight times its density at the point, which never lowers the density
+        and converges to the peak whose basin holds the start. Started at sampled components' means, it
+        sends every component of one slot to the same, most likely point of that slot."""
+        points = start.float()
+        means, weights = means.float(), weights.float()
+        for _ in range(iterations):
+            d2 = (points.unsqueeze(2) - means.unsqueeze(1)).square().sum(-1)  # (B, K, M)
+            pull = weights.unsqueeze(1) * torch.exp(-0.5 * d2 / self.variance)
+            points = (pull @ means) / pull.sum(-1, keepdim=True)
+        return points
+
     def log_likelihood(self, logits: Tensor, means: Tensor, target: Tensor) -> Tensor:
         """log p(target) under the mixture: logsumexp_i [log w_i + log N(target; mean_i, var I)]  -> (B,)."""
         d2 = (means - target.unsqueeze(1)).square().sum(-1)
