@@ -245,6 +245,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="scene points recorded per demonstration and observed per held-out trial (default: the task's)",
     )
+    pretrain.add_argument(
+        "--init-from",
+        metavar="NAME_OR_PATH",
+        default=None,
+        help="fine-tune: start from this goal predictor's weights and architecture (a shipped name, a checkpoint "
+        "folder or a Hub id) instead of random ones; the recipe's steps, batch, schedule and weight average still "
+        "apply, and --policy.<field> flags win (e.g. a smaller --policy.optimizer_lr)",
+    )
     add_threads_argument(pretrain)
     return parser
 
@@ -275,6 +283,7 @@ def _pretrain(args: argparse.Namespace, overrides: list[str]) -> int:
         overwrite=args.overwrite,
         resume_steps=args.resume_steps,
         scene_cloud_size=args.scene_cloud_size,
+        init_from=args.init_from,
     )
     return 0
 

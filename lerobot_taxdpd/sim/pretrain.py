@@ -24,7 +24,8 @@ import numpy as np
 from safetensors.torch import load_file, save_file
 
 from lerobot_taxdpd.data.dataset_writer import read_card_info
-from lerobot_taxdpd.recipes import RECIPE_DIR, recipe_path, run, train_command
+from lerobot_taxdpd.data.schema import METRICS_FILE
+from lerobot_taxdpd.recipes import RECIPE_DIR, portable_train_command, recipe_path, run, train_command
 from lerobot_taxdpd.reports.benchmarking import write_json
 from lerobot_taxdpd.sim.generate import demonstration_details, generate_dataset
 from lerobot_taxdpd.sim.harness import evaluate
@@ -61,9 +62,36 @@ def save_shipped(policy, checkpoint: Path, destination: Path) -> None:
         (destination / processor_file.name).write_bytes(processor_file.read_bytes())
 
 
-def training_flags(task, steps: int | None, overrides: Sequence[str]) -> list[str]:
-    """lerobot-train flags on top of the recipe: the step count, the task's own flags, then the user's (last wins)."""
-    return [*([f"--steps={steps}"] if steps else []), *task.training_flags, *overrides]
+def training_flags(task, steps: int | None, overrides: Sequence[str], init: Sequence[str] = ()) -> list[str]:
+    """lerobot-train flags on top of the recipe: the step count, the starting weights' (`init_flags`), the
+    task's own flags, then the user's (last wins)."""
+    return [*([f"--steps={steps}"] if steps else []), *init, *task.training_flags, *overrides]
+
+
+def init_flags(init_from: str, config_path: Path) -> tuple[list[str], list[str], dict]:
+    """A run that starts from a goal predictor's weights (fine-tuning): its lerobot-train flags as run here and
+    as recorded (a shipped name found on any install), and what the metrics keep of the predictor it started
+    from. LeRobot then takes that predictor's own policy config, its architecture, in place of the recipe's;
+    the recipe's weight average is put back on top, since a shipped config says use_ema=false (it ships the
+    average as its weights). A name that is shipped now may name other weights later, so the metrics keep
+    the starting weights' digest and the command that trained them."""
+    from lerobot_taxdpd.goal_predictors import list_goal_predictors, resolve_goal_predictor, weights_digest
+
+    folder = resolve_goal_predictor(init_from)
+    shipped = list_goal_predictors()
+    recorded = f"$(python -m lerobot_taxdpd.goal_predictors path {init_from})" if init_from in shipped else folder
+    use_ema = json.loads(config_path.read_text()).get("policy", {}).get("use_ema", False)
+    ema = f"--policy.use_ema={str(use_ema).lower()}"
+    metrics_file, train_config = Path(folder) / METRICS_FILE, Path(folder) / "train_config.json"
+    metrics = json.loads(metrics_file.read_text()) if metrics_file.is_file() else {}
+    if "training_command" not in metrics and train_config.is_file():  # a checkpoint of a run, not yet shipped
+        metrics["training_command"] = portable_train_command(json.loads(train_config.read_text()))
+    origin = {
+        "name": init_from,
+        "weights": weights_digest(folder),
+        **{key: metrics[key] for key in ("data", "training_command", "training_steps") if key in metrics},
+    }
+    return [f"--policy.path={folder}", ema], [f"--policy.path={recorded}", ema], origin
 
 
 def pretrain(
@@ -81,6 +109,7 @@ def pretrain(
     overwrite: bool = False,
     resume_steps: int | None = None,
     scene_cloud_size: int | None = None,
+    init_from: str | None = None,
 ) -> dict:
     """Generate, train, evaluate and (optionally) ship one goal predictor; returns its metrics.
 
@@ -91,6 +120,8 @@ def pretrain(
     only when made with the same options, and refused otherwise; `overwrite` makes both afresh. `resume_steps`
     trains the finished run on to that many steps in a second leg (see `resume_once`). `scene_cloud_size`
     records and evaluates denser scenes than the task's default (for `--policy.local_scene_points`).
+    `init_from` (a shipped name, a checkpoint folder or a Hub id) starts from that predictor's weights and
+    architecture instead of random ones (see `init_flags`).
     """
     from lerobot_taxdpd.goal_predictors import load_goal_predictor
 
@@ -99,11 +130,14 @@ def pretrain(
     output = Path(output)
     dataset, run_dir = Path(dataset) if dataset is not None else output / "data", output / "train"
     repo_id = f"local/{task.name}"
-    flags = training_flags(task, steps, overrides)
+    init, recorded_init, origin = init_flags(init_from, config_path) if init_from is not None else ([], [], None)
+    flags = training_flags(task, steps, overrides, init)
     first_leg = steps or json.loads(config_path.read_text())["steps"]
     if resume_steps is not None and resume_steps <= first_leg:
         raise ValueError(f"--resume-steps {resume_steps}: must be more than the first leg's {first_leg} steps")
-    portable_generate, portable_train = portable_commands(task, episodes, config_path, flags, resume_steps)
+    portable_generate, portable_train = portable_commands(
+        task, episodes, config_path, training_flags(task, steps, overrides, recorded_init), resume_steps
+    )
     prepare_demonstrations(task, dataset, repo_id, episodes, portable_generate, overwrite=overwrite)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
@@ -134,6 +168,7 @@ def pretrain(
         "training_steps": train_config["steps"],
         "batch_size": train_config["batch_size"],
         "train_seconds": train_seconds,
+        **({"initialised_from": origin} if origin is not None else {}),
         "evaluation": f"{trials} held-out trials (test geometry, seeds 0..{trials - 1}), K = {num_samples}",
         "license": "apache-2.0",
         **{

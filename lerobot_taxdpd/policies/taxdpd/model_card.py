@@ -33,7 +33,7 @@ _SHAPE = (
     "point_scale",
     "object_scale",
 )
-_SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps")
+_SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps", "gmm_frames")
 _TRAINING = ("prediction_type", "rotation_noise", "start_yaw_range", "start_tilt_range")
 #: metrics.json entry -> (model-index metric type, what the number is); medians of the per-trial values.
 _MEDIANS = {
@@ -271,6 +271,12 @@ def render_model_card(config, metrics: dict, dataset_repo_id: str | None, licens
         if metrics.get("data"):
             body.append(f"- data: {metrics['data']}")
         body.append(f"- trained with `{metrics['training_command']}`")
+        origin = metrics.get("initialised_from")
+        if origin:
+            body.append(
+                f"- starting from the weights of `{origin['name']}` as they were then (weights {origin['weights']}), "
+                f"trained with `{origin.get('training_command', 'unrecorded')}`"
+            )
         if metrics.get("evaluation"):
             body.append(
                 f"- evaluated on {metrics['evaluation']}; the numbers are in the card's metadata and in `metrics.json`"
