@@ -155,31 +155,26 @@ def test_a_finished_run_trains_on_in_a_second_leg_and_ships_with_both_commands(t
     assert "reusing the run resumed to 4 steps" in capsys.readouterr().out
 
 
-def test_a_run_fine_tunes_from_a_predictors_weights_and_records_where_it_started(tmp_path):
-    """`--init-from` starts from another run's weights and architecture (at learning rate 0 the weights come out
-    as they went in), puts the recipe's weight average back on, and keeps in the metrics which weights it
-    started from and how they were trained; a shipped name is recorded as a command that finds it anywhere."""
+def test_a_run_fine_tunes_from_a_shipped_predictor_and_records_where_it_started(tmp_path):
+    """`--init-from NAME` starts from a shipped predictor's weights and architecture (at learning rate 0 the
+    weights come out as they went in), and the new predictor's metrics say which weights it started from, how
+    they were trained, and how to find them again on any install."""
     from safetensors.torch import load_file
 
     from lerobot_taxdpd.goal_predictors import weights_digest
-    from lerobot_taxdpd.sim.pretrain import init_flags
 
     recipe = tiny_taxdpd_recipe(tmp_path / "tiny.json")
-    base = ["pretrain", "--task", TASK, "--config", str(recipe), "--episodes", "2", "--trials", "2",
-            "--num-samples", "2", "--dataset", str(tmp_path / "data")]  # fmt: skip
-    assert main([*base, "--steps", "2", "--output", str(tmp_path / "first")]) == 0
-    start = tmp_path / "first" / "train" / "checkpoints" / "last" / "pretrained_model"
-    assert main([*base, "--steps", "1", "--init-from", str(start), "--policy.optimizer_lr=0", "--policy.use_ema=false",
-                 "--output", str(tmp_path / "tuned")]) == 0  # fmt: skip
-    tuned = tmp_path / "tuned" / "train" / "checkpoints" / "last" / "pretrained_model"
-    before, after = load_file(start / "model.safetensors"), load_file(tuned / "model.safetensors")
-    assert all((after[name] == before[name]).all() for name in after)
-    metrics = json.loads((tmp_path / "tuned" / "metrics.json").read_text())
+    output = tmp_path / "tuned"
+    assert main(["pretrain", "--task", TASK, "--config", str(recipe), "--episodes", "2", "--trials", "2",
+                 "--num-samples", "2", "--steps", "1", "--init-from", TASK, "--policy.optimizer_lr=0",
+                 "--policy.use_ema=false", "--output", str(output)]) == 0  # fmt: skip
+    shipped = Path(resolve_goal_predictor(TASK))
+    before = load_file(shipped / "model.safetensors")
+    after = load_file(output / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
+    assert after.keys() == before.keys() and all((after[k] == before[k].float()).all() for k in after)
+    metrics = json.loads((output / "metrics.json").read_text())
     origin = metrics["initialised_from"]
-    assert origin["weights"] == weights_digest(start) and "--steps=2" in origin["training_command"]
-    assert f"--policy.path={start}" in metrics["training_command"]
-
-    run_flags, recorded, _ = init_flags("book_shelf", recipe_path("taxdpd_cpu"))
-    finds_it = "$(python -m lerobot_taxdpd.goal_predictors path book_shelf)"
-    assert recorded == [f"--policy.path={finds_it}", "--policy.use_ema=true"]
-    assert run_flags[0] == f"--policy.path={resolve_goal_predictor('book_shelf')}"
+    assert origin["weights"] == weights_digest(shipped)
+    assert origin["training_command"] == json.loads((shipped / "metrics.json").read_text())["training_command"]
+    finds_it = f" --policy.path=$(python -m lerobot_taxdpd.goal_predictors path {TASK}) --policy.use_ema=false "
+    assert finds_it in metrics["training_command"]  # unquoted, so that the shell runs it

@@ -138,6 +138,8 @@ def pretrain(
     portable_generate, portable_train = portable_commands(
         task, episodes, config_path, training_flags(task, steps, overrides, recorded_init), resume_steps
     )
+    for flag in recorded_init:  # a `$(...)` that finds a shipped predictor must run, not be quoted
+        portable_train = portable_train.replace(shlex.quote(flag), flag)
     prepare_demonstrations(task, dataset, repo_id, episodes, portable_generate, overwrite=overwrite)
     command = train_command(_relative(dataset), repo_id, _relative(run_dir), recipe=_relative(config_path), flags=flags)
     checkpoint = run_dir / "checkpoints" / "last" / "pretrained_model"
