@@ -68,6 +68,10 @@ def training_flags(task, steps: int | None, overrides: Sequence[str], init: Sequ
     return [*([f"--steps={steps}"] if steps else []), *init, *task.training_flags, *overrides]
 
 
+#: What a fine-tuned predictor's metrics keep of the one it started from (its own origin too: a chain of legs).
+_ORIGIN_KEYS = ("data", "training_command", "training_steps", "initialised_from")
+
+
 def init_flags(init_from: str, config_path: Path) -> tuple[list[str], list[str], dict]:
     """A run that starts from a goal predictor's weights (fine-tuning): its lerobot-train flags as run here and
     as recorded (a shipped name found on any install), and what the metrics keep of the predictor it started
@@ -89,7 +93,7 @@ def init_flags(init_from: str, config_path: Path) -> tuple[list[str], list[str],
     origin = {
         "name": init_from,
         "weights": weights_digest(folder),
-        **{key: metrics[key] for key in ("data", "training_command", "training_steps") if key in metrics},
+        **{key: metrics[key] for key in _ORIGIN_KEYS if key in metrics},
     }
     return [f"--policy.path={folder}", ema], [f"--policy.path={recorded}", ema], origin
 
