@@ -249,9 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--init-from",
         metavar="NAME_OR_PATH",
         default=None,
-        help="fine-tune: start from this goal predictor's weights and architecture (a shipped name, a checkpoint "
-        "folder or a Hub id) instead of random ones; the recipe's steps, batch, schedule and weight average still "
-        "apply, and --policy.<field> flags win (e.g. a smaller --policy.optimizer_lr)",
+        help="fine-tune: start from this goal predictor's weights (a shipped name, a checkpoint folder or a Hub "
+        "id) instead of random ones; its own policy config (architecture, learning rate, warm-up) replaces the "
+        "recipe's, with the recipe's weight average put back on; the recipe's steps and batch still apply, and "
+        "--policy.<field> flags win (e.g. a smaller --policy.optimizer_lr)",
     )
     add_threads_argument(pretrain)
     return parser
