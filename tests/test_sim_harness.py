@@ -251,19 +251,28 @@ def test_a_predictor_given_by_factory_sees_scenes_as_dense_as_it_was_trained_on(
 
 
 def test_eval_draws_the_frames_the_way_it_is_asked_and_says_which(tmp_path, capsys):
-    """`--goal-policy.gmm-frames modes` samples the shipped book predictor's frames at its mixture's peaks: other
-    goals from the same scenes and draws, and the report says which way they were drawn."""
+    """`--goal-policy.gmm-frames modes` samples the shipped book predictor's frames at its mixture's peaks and
+    `--goal-policy.frame-temperature 0` starts the local stage at them: other goals from the same scenes and
+    draws, and the report says how they were drawn."""
     base = ["eval", "--task", "book_shelf", "--goal-policy.path", "book_shelf", "--trials", "2", "--num-samples", "2",
             "--figures", "0"]  # fmt: skip
-    reports = {}
-    for frames in ("components", "modes"):
-        assert main([*base, "--goal-policy.gmm-frames", frames, "--output", str(tmp_path / frames)]) == 0
-        reports[frames] = json.loads((tmp_path / frames / "book_shelf_eval.json").read_text())
-        assert reports[frames]["gmm_frames"] == frames
-    errors = {f: [t["translation_error_mm"] for t in r["per_trial"]] for f, r in reports.items()}
-    assert errors["components"] != errors["modes"]
+    variants = {
+        "components": (["--goal-policy.gmm-frames", "components"], "components", 1.0),
+        "modes": (["--goal-policy.gmm-frames", "modes"], "modes", 1.0),
+        "cold": (["--goal-policy.frame-temperature", "0"], "components", 0.0),
+    }
+    errors = {}
+    for name, (flags, frames, temperature) in variants.items():
+        assert main([*base, *flags, "--output", str(tmp_path / name)]) == 0
+        report = json.loads((tmp_path / name / "book_shelf_eval.json").read_text())
+        assert (report["gmm_frames"], report["frame_temperature"]) == (frames, temperature)
+        errors[name] = [t["translation_error_mm"] for t in report["per_trial"]]
+    assert errors["components"] != errors["modes"] and errors["components"] != errors["cold"]
     assert main(["eval", "--task", "book_shelf", "--predictor", "oracle", "--goal-policy.gmm-frames", "modes"]) == 1
     assert "--goal-policy.gmm-frames: only applies to a TAX-DPD goal predictor" in capsys.readouterr().err
+    assert main([*base, "--goal-policy.frame-temperature", "-1", "--output", str(tmp_path / "refused")]) == 1
+    assert "--goal-policy.frame-temperature -1.0: frame_temperature: must be a finite" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
 
 
 def test_command_line_errors_name_the_argument(tmp_path, capsys):

@@ -22,7 +22,7 @@ from pathlib import Path
 from lerobot_taxdpd.cli_options import add_deprecated_alias, add_search_arguments, with_search
 from lerobot_taxdpd.data.schema import CLOTH_TASK
 from lerobot_taxdpd.maths.selection import GOAL_SELECTIONS
-from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import GMM_FRAMES
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import GMM_FRAMES, check_frame_temperature
 from lerobot_taxdpd.sim.splits import SPLITS
 from lerobot_taxdpd.threads import add_threads_argument, configure_threads
 
@@ -32,6 +32,7 @@ RIGID_ONLY = {
     "predictor": "--predictor",
     "placement_frames": "--placement-frames",
     "gmm_frames": "--goal-policy.gmm-frames",
+    "frame_temperature": "--goal-policy.frame-temperature",
     "oracle_error_mm": "--oracle-error-mm",
     "oracle_error_deg": "--oracle-error-deg",
     "observed_scene_cloud_size": "--scene-cloud-size",
@@ -160,6 +161,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="--goal-policy.path only: how the Dense GMM's frames are drawn, at a component's mean (as published) "
         "or moved to the peak of the mixture's density it lies under (default: the checkpoint's gmm_frames)",
+    )
+    rigid.add_argument(
+        "--goal-policy.frame-temperature",
+        dest="frame_temperature",
+        type=float,
+        default=None,
+        metavar="TAU",
+        help="--goal-policy.path only: the scale of the placement frame's starting noise while sampling, 1 as "
+        "published, 0 starts every sample at its GMM frame (default: the checkpoint's frame_temperature)",
     )
     rigid.add_argument(
         "--scene-cloud-size",
@@ -481,8 +491,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     oracle_error_mm, oracle_error_deg = args.oracle_error_mm or 0.0, args.oracle_error_deg or 0.0
     if not oracle and (oracle_error_mm or oracle_error_deg):
         raise ValueError("--oracle-error-mm/--oracle-error-deg only apply to --predictor oracle")
-    for given, flag in ((args.placement_frames, "--placement-frames"), (args.gmm_frames, "--goal-policy.gmm-frames")):
-        if given and not goal_policy_path:
+    sampling_flags = (
+        (args.placement_frames, "--placement-frames"),
+        (args.gmm_frames, "--goal-policy.gmm-frames"),
+        (args.frame_temperature, "--goal-policy.frame-temperature"),
+    )
+    for given, flag in sampling_flags:
+        if given is not None and not goal_policy_path:
             raise ValueError(f"{flag}: only applies to a TAX-DPD goal predictor (--goal-policy.path)")
     if goal_policy_path:
         try:
@@ -495,6 +510,13 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.gmm_frames:
             predictor.config.gmm_frames = args.gmm_frames
         gmm_frames = predictor.config.gmm_frames
+        if args.frame_temperature is not None:
+            try:
+                check_frame_temperature(args.frame_temperature, predictor.config.disentangled)
+            except ValueError as error:
+                raise ValueError(f"--goal-policy.frame-temperature {args.frame_temperature}: {error}") from error
+            predictor.config.frame_temperature = args.frame_temperature
+        frame_temperature = predictor.config.frame_temperature
     elif not oracle:
         predictor = load_predictor(args.predictor)
     if not oracle:  # a predictor with a policy's config states its scene size, whichever way it was given
@@ -527,6 +549,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         report["placement_frames"] = args.placement_frames
     if goal_policy_path:
         report["gmm_frames"] = gmm_frames
+        report["frame_temperature"] = frame_temperature
     path = write_json(output / f"{task.name}_eval.json", report)
     s = report["success"]
     print(

@@ -19,6 +19,8 @@ use_gmm=false disentangled=false use_reconstruction_embedding=false use_deformat
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
@@ -35,6 +37,17 @@ PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 COMPILE_MODES = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 ROTATION_NOISES = ("paper", "signal")
 GMM_FRAMES = ("components", "modes")
+
+
+def check_frame_temperature(frame_temperature: float, disentangled: bool) -> None:
+    """A clear error for a frame temperature that is not a finite number >= 0, or for one other than 1 on a
+    model without a frame to scale."""
+    if isinstance(frame_temperature, bool) or not isinstance(frame_temperature, numbers.Real):
+        raise ValueError(f"frame_temperature: must be a number >= 0, got {frame_temperature!r}")
+    if not (math.isfinite(frame_temperature) and frame_temperature >= 0):
+        raise ValueError(f"frame_temperature: must be a finite number >= 0, got {frame_temperature!r}")
+    if frame_temperature != 1.0 and not disentangled:
+        raise ValueError("frame_temperature: needs disentangled=true (the joint diffusion has no frame of its own)")
 
 
 def check_inference_steps(num_inference_steps: int, num_train_timesteps: int) -> None:
@@ -141,6 +154,10 @@ class TaxDPDConfig(PreTrainedConfig):
     local_scene_with_whole: bool = False
     sampler: str = "ddim"
     num_inference_steps: int = 10
+    # The scale of the placement frame's starting noise when sampling (the shape's keeps the full scale): 1 as
+    # published; below 1 starts each sample's frame nearer its GMM frame, low-temperature sampling that trades
+    # the frames' spread around a slot for their precision. Sampling only: training is the same.
+    frame_temperature: float = 1.0
     num_goal_samples: int = 1  # goals sampled per call of `select_action` (the first is returned)
 
     # ---- training augmentation
@@ -218,6 +235,7 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.gmm_frames not in GMM_FRAMES:
             raise ValueError(f"gmm_frames: must be one of {GMM_FRAMES}, got {self.gmm_frames!r}")
+        check_frame_temperature(self.frame_temperature, self.disentangled)
         if self.prediction_type not in PREDICTION_TYPES:
             raise ValueError(f"prediction_type: must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
         if self.sampler not in SAMPLERS:

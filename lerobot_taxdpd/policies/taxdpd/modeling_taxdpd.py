@@ -178,10 +178,12 @@ class TaxDPDModel(nn.Module):
         fps_ordered: tuple[bool, bool] = (False, False),
         dense_scene: Tensor | None = None,
         gmm_frames: str = "components",
+        frame_temperature: float = 1.0,
     ) -> Tensor:
         """K goal clouds per scene: (B, N, 3), (B, M, 3) -> (B, K, N, 3). `frames` (B, 3), when given, are the
         placement frames of every sample instead of the Dense GMM's; `gmm_frames` says how the Dense GMM's
-        are drawn (`TaxDPDConfig.gmm_frames`); `fps_ordered` and `dense_scene` as in `forward`."""
+        are drawn (`TaxDPDConfig.gmm_frames`), `frame_temperature` how far from them the local stage starts
+        (`TaxDPDConfig.frame_temperature`); `fps_ordered` and `dense_scene` as in `forward`."""
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
         layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
@@ -211,7 +213,13 @@ class TaxDPDModel(nn.Module):
             scene_local = scene_points.repeat_interleave(num_samples, 0)
         frames = frames.unsqueeze(1)
         goals = self.local_stage.sample(
-            object_centred, scene_local - frames, num_inference_steps, eta=eta, generator=generator, layouts=layouts
+            object_centred,
+            scene_local - frames,
+            num_inference_steps,
+            eta=eta,
+            generator=generator,
+            layouts=layouts,
+            frame_temperature=frame_temperature,
         )
         return (goals + frames).reshape(b, num_samples, n, 3)
 
@@ -427,6 +435,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 fps_ordered=fps_ordered,
                 dense_scene=frame.to_model(scene_points) if self.config.local_scene_points else None,
                 gmm_frames=gmm_frames,
+                frame_temperature=self.config.frame_temperature,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:

@@ -223,11 +223,15 @@ class LocalDiffusion(nn.Module):
         eta: float = 0.0,
         generator: torch.Generator | None = None,
         layouts: list[SamplingLayout] | None = None,
+        frame_temperature: float = 1.0,
     ) -> Tensor:
-        """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3)."""
+        """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3). The frame's starting
+        noise is scaled by `frame_temperature` (`TaxDPDConfig.frame_temperature`); the shape's is not."""
         context = self.denoiser.context(object_centred, scene, layouts)
         param, sampler = self.parameterization, self.sampler
         state = param.initial_state(context.object_centred, generator)
+        if frame_temperature != 1.0 and "frame" in state:
+            state["frame"] = state["frame"] * frame_temperature
         for step in sampler.steps(num_inference_steps):
             t = torch.full((scene.shape[0],), step.timestep, device=scene.device)
             predicted = self._predict(context, state, t)
