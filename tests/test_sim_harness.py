@@ -251,15 +251,16 @@ def test_a_predictor_given_by_factory_sees_scenes_as_dense_as_it_was_trained_on(
 
 
 def test_eval_draws_the_frames_the_way_it_is_asked_and_says_which(tmp_path, capsys):
-    """`--goal-policy.gmm-frames modes` samples the shipped book predictor's frames at its mixture's peaks and
-    `--goal-policy.frame-temperature 0` starts the local stage at them: other goals from the same scenes and
-    draws, and the report says how they were drawn."""
+    """`--goal-policy.gmm-frames modes` samples the shipped book predictor's frames at its mixture's peaks, and
+    `--goal-policy.frame-temperature 1` starts its local stage with the published frame noise instead of at
+    them (it ships at 0): other goals from the same scenes and draws, and the report says how they were drawn."""
     base = ["eval", "--task", "book_shelf", "--goal-policy.path", "book_shelf", "--trials", "2", "--num-samples", "2",
             "--figures", "0"]  # fmt: skip
+    published = ["--goal-policy.frame-temperature", "1"]
     variants = {
-        "components": (["--goal-policy.gmm-frames", "components"], "components", 1.0),
-        "modes": (["--goal-policy.gmm-frames", "modes"], "modes", 1.0),
-        "cold": (["--goal-policy.frame-temperature", "0"], "components", 0.0),
+        "published": ([*published, "--goal-policy.gmm-frames", "components"], "components", 1.0),
+        "modes": ([*published, "--goal-policy.gmm-frames", "modes"], "modes", 1.0),
+        "as shipped": ([], "components", 0.0),
     }
     errors = {}
     for name, (flags, frames, temperature) in variants.items():
@@ -267,7 +268,7 @@ def test_eval_draws_the_frames_the_way_it_is_asked_and_says_which(tmp_path, caps
         report = json.loads((tmp_path / name / "book_shelf_eval.json").read_text())
         assert (report["gmm_frames"], report["frame_temperature"]) == (frames, temperature)
         errors[name] = [t["translation_error_mm"] for t in report["per_trial"]]
-    assert errors["components"] != errors["modes"] and errors["components"] != errors["cold"]
+    assert errors["published"] != errors["modes"] and errors["published"] != errors["as shipped"]
     assert main(["eval", "--task", "book_shelf", "--predictor", "oracle", "--goal-policy.gmm-frames", "modes"]) == 1
     assert "--goal-policy.gmm-frames: only applies to a TAX-DPD goal predictor" in capsys.readouterr().err
     assert main([*base, "--goal-policy.frame-temperature", "-1", "--output", str(tmp_path / "refused")]) == 1

@@ -33,7 +33,7 @@ _SHAPE = (
     "point_scale",
     "object_scale",
 )
-_SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps", "gmm_frames")
+_SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps", "gmm_frames", "frame_temperature")
 _TRAINING = ("prediction_type", "rotation_noise", "start_yaw_range", "start_tilt_range")
 #: metrics.json entry -> (model-index metric type, what the number is); medians of the per-trial values.
 _MEDIANS = {
