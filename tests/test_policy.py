@@ -158,6 +158,7 @@ def test_bad_input_names_the_argument(obj, scene, message):
         ({"num_inference_steps": 7}, "got 7"),
         ({"num_samples": 0}, "num_samples: must be a positive integer"),
         ({"gmm_frames": "mode"}, r"gmm_frames: must be one of \['components', 'modes'\], got 'mode'"),
+        ({"frame_temperature": -1.0}, r"frame_temperature: must be a finite number >= 0, got -1.0"),
     ],
 )
 def test_bad_sampling_options_name_the_option(options, message):
@@ -262,22 +263,28 @@ def test_a_frame_temperature_it_cannot_serve_is_refused_by_name(overrides, messa
 def test_a_cold_frame_start_gathers_the_samples_at_their_placement_frame():
     """frame_temperature=0 starts every sample's frame at its placement frame: with the shipped book
     predictor, the centroids of 16 goals sampled at one frame (a held-out scene's true one) scatter several
-    times less than with the published full-scale start, and the setting is read at every call."""
+    times less than with the published full-scale start; a call's `frame_temperature` overrides the config's."""
     policy = load_goal_predictor("book_shelf")
     task = get_task("book_shelf")
-    for seed in (2000, 2001):
-        trial = make_trial(task, seed, "test")
+
+    def sample(trial, **temperature) -> torch.Tensor:
         obj, scene = torch.from_numpy(trial.object_points)[None], torch.from_numpy(trial.scene_points)[None]
         frame = torch.from_numpy(trial.goal_points().mean(0))[None]
+        generator = torch.Generator().manual_seed(0)
+        return policy.sample_goals(obj, scene, 16, generator=generator, placement_frames=frame, **temperature)
+
+    for seed in (2000, 2001):
+        trial = make_trial(task, seed, "test")
         spread = {}
         for temperature in (1.0, 0.0):
-            policy.config.frame_temperature = temperature
-            generator = torch.Generator().manual_seed(0)
-            goals = policy.sample_goals(obj, scene, 16, generator=generator, placement_frames=frame)
-            centroids = goals[0].mean(1)
+            centroids = sample(trial, frame_temperature=temperature)[0].mean(1)
             spread[temperature] = float((centroids - centroids.mean(0)).norm(dim=-1).median()) * 1000
         print(f"scene {seed}: median centroid spread {spread[1.0]:.1f} mm at temperature 1, {spread[0.0]:.1f} at 0")
         assert spread[0.0] < 0.25 * spread[1.0]
+    assert policy.config.frame_temperature == 0.0  # as shipped
+    torch.testing.assert_close(sample(trial), sample(trial, frame_temperature=0.0))
+    policy.config.frame_temperature = 1.0
+    torch.testing.assert_close(sample(trial), sample(trial, frame_temperature=1.0))
 
 
 def test_a_dit_block_computes_adaln_zero_as_written():

@@ -54,7 +54,12 @@ from lerobot_taxdpd.policies.taxdpd.augmentation import (
     random_start_pose,
     random_z_rotation,
 )
-from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import GMM_FRAMES, TaxDPDConfig, check_inference_steps
+from lerobot_taxdpd.policies.taxdpd.configuration_taxdpd import (
+    GMM_FRAMES,
+    TaxDPDConfig,
+    check_frame_temperature,
+    check_inference_steps,
+)
 from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
@@ -364,6 +369,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         num_inference_steps: int | None = None,
         sampler: str | None = None,
         gmm_frames: str | None = None,
+        frame_temperature: float | None = None,
         generator: torch.Generator | None = None,
         placement_frames=None,
     ) -> Tensor:
@@ -371,8 +377,9 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
         Tensors or numpy arrays are accepted; the answer is a float32 tensor on the policy's device.
         Row i of each sample is where point i of the object should go. `num_inference_steps`, `sampler`
-        ("ddim" or "ddpm") and `gmm_frames` ("components" or "modes", see `TaxDPDConfig.gmm_frames`)
-        default to the config's; `generator` makes sampling reproducible.
+        ("ddim" or "ddpm"), `gmm_frames` ("components" or "modes", see `TaxDPDConfig.gmm_frames`) and
+        `frame_temperature` (see `TaxDPDConfig.frame_temperature`) default to the config's; `generator` makes
+        sampling reproducible.
         `placement_frames` (B, 3), metres: where the object's centroid goes, given instead of sampled from
         the Dense GMM, so the local stage alone is measured (e.g. at the true goal's centroid).
         """
@@ -384,6 +391,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             num_inference_steps=num_inference_steps,
             sampler=sampler,
             gmm_frames=gmm_frames,
+            frame_temperature=frame_temperature,
             generator=generator,
             placement_frames=placement_frames,
         )
@@ -397,6 +405,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         num_inference_steps: int | None = None,
         sampler: str | None = None,
         gmm_frames: str | None = None,
+        frame_temperature: float | None = None,
         generator: torch.Generator | None = None,
         placement_frames=None,
     ) -> Tensor:
@@ -418,6 +427,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
         gmm_frames = self.config.gmm_frames if gmm_frames is None else gmm_frames
         if gmm_frames not in GMM_FRAMES:
             raise ValueError(f"gmm_frames: must be one of {list(GMM_FRAMES)}, got {gmm_frames!r}")
+        frame_temperature = self.config.frame_temperature if frame_temperature is None else frame_temperature
+        check_frame_temperature(frame_temperature, self.config.disentangled)
         model_object, model_scene, fps_ordered, radius = self._at_model_resolution(object_points, scene_points)
         frame = ModelFrame.of_scene(model_scene, self._point_scale(object_points, radius=radius))
         if placement_frames is not None:  # where the object's centroid goes -> where the model's subsample's goes
@@ -435,7 +446,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
                 fps_ordered=fps_ordered,
                 dense_scene=frame.to_model(scene_points) if self.config.local_scene_points else None,
                 gmm_frames=gmm_frames,
-                frame_temperature=self.config.frame_temperature,
+                frame_temperature=frame_temperature,
             )
         goals = frame.to_metres(goals)
         if model_object.shape[1] != object_points.shape[1]:
