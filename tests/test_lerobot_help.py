@@ -23,9 +23,12 @@ from lerobot_taxdpd.sim.env_config import TaxDPDSimEnvConfig
     [
         (
             ["lerobot-train", "--policy.type=taxdpd", "--help"],
-            ["--policy.ransac_threshold", "--policy.point_feature_dim"],  # both of the plugin's policy types
+            ["--policy.type", "--policy.ransac_threshold", "--policy.point_feature_dim"],  # both plugin policies
         ),
-        (["lerobot-eval", "--env.type=taxdpd_sim", "--help"], ["--env.split", "--policy.ransac_threshold"]),
+        (
+            ["lerobot-eval", "--env.type=taxdpd_sim", "--help"],
+            ["--env.type", "--env.split", "--policy.ransac_threshold"],
+        ),
     ],
 )
 def test_lerobot_help_works_with_the_plugin_installed(command, shown):
