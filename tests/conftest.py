@@ -97,6 +97,11 @@ def cli():
     return run_cli
 
 
+def pytest_unconfigure(config) -> None:
+    """Remove the session's Hugging Face home (every process that imported this file made its own)."""
+    shutil.rmtree(_HF_HOME, ignore_errors=True)
+
+
 def pytest_collection_modifyitems(config, items) -> None:
     """Tests marked `long` (minutes each) start first, so that parallel workers share the rest while they run."""
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
