@@ -37,6 +37,8 @@ PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
 COMPILE_MODES = (None, "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 ROTATION_NOISES = ("paper", "signal")
 GMM_FRAMES = ("components", "modes")
+#: Beyond 12 octaves the shortest period (12.6 / 2^11 model units) is below any sensor's noise.
+MAX_POSITION_OCTAVES = 12
 
 
 def check_frame_temperature(frame_temperature: float, disentangled: bool) -> None:
@@ -152,6 +154,10 @@ class TaxDPDConfig(PreTrainedConfig):
     # beside the crop's, so what only the whole scene shows (a shelf's row of books, which way its slots run)
     # is not cropped away with the distant points.
     local_scene_with_whole: bool = False
+    # Fourier features of every local-stage token's position (the goal estimate's points, the scene's), sines and
+    # cosines at this many octave frequencies from 0.5 per model unit, added through a linear layer that starts at
+    # zero; 0, as published, leaves positions to the encoders' linear layers, which learn fine position slowly.
+    position_octaves: int = 0
     sampler: str = "ddim"
     num_inference_steps: int = 10
     # The scale of the placement frame's starting noise when sampling (the shape's keeps the full scale): 1 as
@@ -231,6 +237,12 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
         if self.local_scene_with_whole and not self.local_scene_points:
             raise ValueError("local_scene_with_whole: needs local_scene_points > 0 (the crop it is seen beside)")
+        octaves = self.position_octaves
+        if isinstance(octaves, bool) or not isinstance(octaves, int) or not 0 <= octaves <= MAX_POSITION_OCTAVES:
+            raise ValueError(
+                f"position_octaves: an integer in [0, {MAX_POSITION_OCTAVES}] (0: no Fourier positions), "
+                f"got {self.position_octaves!r}"
+            )
         if not 0.0 < self.gmm_batch_fraction <= 1.0:
             raise ValueError(f"gmm_batch_fraction: must lie in (0, 1], got {self.gmm_batch_fraction}")
         if self.gmm_frames not in GMM_FRAMES:

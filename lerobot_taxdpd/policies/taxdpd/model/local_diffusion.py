@@ -5,7 +5,9 @@ Token construction (paper, Method Details):
   into object-side and scene-side features; the scene side become the scene tokens;
 - object embedding: the initial, mean-centred object (constant while sampling, so computed once);
 - deformation embedding: per-point [shape estimate, displacement, zero-mean displacement] (9 channels);
-- token mixing: a linear layer from the concatenated object-side streams to `hidden_dim`.
+- token mixing: a linear layer from the concatenated object-side streams to `hidden_dim`;
+- with `position_octaves` (not in the paper): Fourier features of each token's position added to the object
+  tokens (the goal estimate) and the scene tokens (see `positions.py`).
 Object tokens plus a learnable frame token go through the DiT, cross-attending to the scene tokens; the
 frame token is read out by the frame head and the object tokens by the shape head.
 """
@@ -28,6 +30,7 @@ from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import (
     concat_layouts,
     make_encoder,
 )
+from lerobot_taxdpd.policies.taxdpd.model.positions import FourierPositions
 from lerobot_taxdpd.policies.taxdpd.schedulers import DDIMSampler, make_training_scheduler, training_target
 
 
@@ -42,6 +45,7 @@ class DenoiserContext:
     object_features: Tensor  # (B, N, dim)
     reconstruction_layout: SamplingLayout | None
     scene_features: Tensor | None  # scene tokens when there is no reconstruction embedding
+    scene_positions: Tensor | None  # Fourier features of the scene's points, with position_octaves
 
 
 def _empty_channels(x: Tensor) -> Tensor:
@@ -66,6 +70,7 @@ class LocalDenoiser(nn.Module):
         if self.use_deformation:
             self.deformation_encoder = make_encoder(config, in_channels=9)
         self.token_mixing = nn.Linear((3 if self.use_deformation else 2) * dim, dim)
+        self.positions = FourierPositions(dim, config.position_octaves) if config.position_octaves else None
         self.timestep_embedding = TimestepEmbedding(dim, config.timestep_embed_dim)
         self.frame_token = nn.Parameter(torch.randn(1, 1, dim) * 0.02) if frame_dim else None
         self.backbone = DiT(dim, config.num_heads, config.num_blocks, config.mlp_ratio)
@@ -99,6 +104,7 @@ class LocalDenoiser(nn.Module):
         object_features = self.object_encoder(
             object_centred, _empty_channels(object_centred), layout=object_layout, grouping=object_grouping
         )
+        scene_positions = self.positions(scene) if self.positions is not None else None
         if repeats > 1:
             object_centred = object_centred.repeat_interleave(repeats, 0)
             object_features = object_features.repeat_interleave(repeats, 0)
@@ -112,6 +118,7 @@ class LocalDenoiser(nn.Module):
             object_features,
             reconstruction_layout,
             scene_features,
+            scene_positions,
         )
 
     def forward(
@@ -143,6 +150,9 @@ class LocalDenoiser(nn.Module):
                 )
             )
         tokens = self.token_mixing(torch.cat(streams, -1))
+        if self.positions is not None:
+            tokens = tokens + self.positions(goal_estimate).to(tokens.dtype)
+            scene_tokens = scene_tokens + context.scene_positions.to(scene_tokens.dtype)
         condition = self.timestep_embedding(t)
         if self.frame_token is not None:
             tokens = torch.cat([tokens, self.frame_token.expand(tokens.shape[0], -1, -1).to(tokens.dtype)], 1)
