@@ -8,6 +8,7 @@ import torch
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.maths.geometry import device_code_paths, estimate_rigid_transform, farthest_point_sample
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
 from lerobot_taxdpd.reports.launches import LaunchCounter
 
 
@@ -107,6 +108,23 @@ def test_an_amp_step_casts_the_linear_weights_together_and_computes_the_same_ste
         ("together", together), ("per layer", per_layer))}  # fmt: skip
     linear_layers = sum(isinstance(m, torch.nn.Linear) for m in policy.model.modules())
     assert casts["per layer"] - casts["together"] >= 3 * linear_layers, casts
+
+
+def test_a_point_encoder_under_autocast_casts_its_clouds_once():
+    """Coordinates cast once to the layers' dtype, not at every concatenation with bf16 features: three casts a
+    pass (the clouds, the two interpolation weights), and the same features as the clouds handed over in bf16."""
+    encoder = make_encoder(_small_policy().config, in_channels=9).to(torch.bfloat16)  # bf16 weights, as sampling has
+    g = torch.Generator().manual_seed(3)
+    xyz, features = torch.rand(2, 32, 3, generator=g), torch.rand(2, 32, 9, generator=g)
+    layout = encoder.layout([xyz])
+    counter = LaunchCounter()
+    with torch.autocast("cpu", dtype=torch.bfloat16), torch.no_grad():
+        grouping = encoder.group(xyz, layout)
+        with counter:
+            out = encoder(xyz, features, layout=layout, grouping=grouping)
+        handed_bf16 = encoder(xyz.bfloat16(), features.bfloat16(), layout=layout, grouping=grouping)
+    assert sum(c["_to_copy"] for c in counter.ops.values()) <= 3, counter.ops
+    assert out.dtype == torch.bfloat16 and torch.equal(out, handed_bf16)
 
 
 @pytest.mark.parametrize("overrides", [{}, {"local_scene_points": 48}], ids=["whole-scene", "local-scene"])

@@ -222,6 +222,12 @@ class PointNet2Encoder(nn.Module):
         """Centroids chosen per part (e.g. [object, scene]) of the concatenated cloud."""
         return sampling_layout(parts, self.ratios)
 
+    def _compute_dtype(self, xyz: Tensor) -> torch.dtype:
+        """The dtype the linear layers compute in: autocast's where it is on, else the weights'."""
+        if torch.is_autocast_enabled(xyz.device.type):
+            return torch.get_autocast_dtype(xyz.device.type)
+        return self.sa1.first.weight.dtype
+
     def group(self, xyz: Tensor, layout: SamplingLayout) -> Grouping:
         return build_grouping(xyz, layout, self.radii, self.max_neighbors)
 
@@ -231,8 +237,11 @@ class PointNet2Encoder(nn.Module):
         if layout is None:
             layout = self.layout([xyz])
         if grouping is None:
-            grouping = self.group(xyz, layout)
-        point_features = torch.cat([xyz, features], -1)
+            grouping = self.group(xyz, layout)  # in fp32, from the coordinates as given
+        # The layers compute in one dtype (bf16 under autocast): the coordinates are cast to it once, here, so
+        # that no concatenation of coordinates with features promotes and casts back, at no change of value.
+        point_features = torch.cat([xyz, features], -1).to(self._compute_dtype(xyz))
+        xyz = point_features[..., :3]
         centres1 = gather_points(xyz, layout.level1)
         centres2 = gather_points(centres1, layout.level2)
         f1 = self.sa1(xyz, point_features, centres1, grouping.neighbors1)
