@@ -204,7 +204,25 @@ def test_each_dit_block_gets_the_modulation_and_context_its_own_layers_give(stag
         expected = block(expected, keys_values, block.modulation_of(condition))
     with torch.no_grad():
         torch.testing.assert_close(dit(tokens, context, condition), expected, rtol=1e-5, atol=1e-5)
+        given = dit(tokens, context, modulations=dit.modulations_of(condition))  # as a sampling loop hands them
+        torch.testing.assert_close(given, expected, rtol=1e-5, atol=1e-5)
     assert len(dit.blocks) > 1 and not torch.allclose(expected, tokens)  # trained blocks that act
+
+
+def test_the_sampling_loop_conditions_every_step_as_its_timestep_alone_would():
+    """The loop computes the modulations of all its timesteps at once and hands each step its row: with a shipped
+    predictor's weights, each row is what that step's timestep alone gives, for the DiT and both output heads."""
+    denoiser = load_goal_predictor("mug_easyrack").model.local_stage.denoiser
+    timesteps = torch.tensor([90, 60, 30, 0])
+    with torch.no_grad():
+        together = denoiser.conditioning(timesteps)
+        for index, t in enumerate(timesteps):
+            alone, row = denoiser.conditioning(torch.full((3,), int(t))), together.step(index, 3)
+            torch.testing.assert_close(row.backbone, alone.backbone, rtol=1e-5, atol=1e-6)
+            for head in ("point_head", "frame_head"):
+                for given, own in zip(getattr(row, head), getattr(alone, head), strict=True):
+                    torch.testing.assert_close(given, own, rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(together.backbone[0], together.backbone[-1])  # the timestep matters
 
 
 def test_gmm_frames_at_modes_climb_to_the_peak_of_the_slot_they_were_drawn_at():

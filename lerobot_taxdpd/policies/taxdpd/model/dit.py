@@ -137,9 +137,17 @@ class OutputHead(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def forward(self, x: Tensor, condition: Tensor) -> Tensor:
+    def modulation_of(self, condition: Tensor) -> tuple[Tensor, Tensor]:
+        """Shift and 1 + scale, each (B, dim)."""
         shift, scale = self.modulation(condition).chunk(2, dim=-1)
-        return self.linear(_modulate(self.norm(x), shift, 1.0 + scale))
+        return shift, 1.0 + scale
+
+    def forward(
+        self, x: Tensor, condition: Tensor | None = None, *, modulation: tuple[Tensor, Tensor] | None = None
+    ) -> Tensor:
+        """Read-out of tokens x under `condition`, or under its `modulation_of` computed beforehand."""
+        shift, one_plus_scale = self.modulation_of(condition) if modulation is None else modulation
+        return self.linear(_modulate(self.norm(x), shift, one_plus_scale))
 
 
 class DiT(nn.Module):
@@ -151,10 +159,20 @@ class DiT(nn.Module):
         self.norm_context = _norm(dim)
         self.register_buffer("scale_offset", _scale_offset(dim).repeat(num_blocks), persistent=False)
 
-    def forward(self, tokens: Tensor, context: Tensor, condition: Tensor) -> Tensor:
-        blocks = len(self.blocks)
+    def modulations_of(self, condition: Tensor) -> Tensor:
+        """Every block's modulation side by side, (B, blocks * 9 * dim), each scale as 1 + scale."""
         modulations = linear_together([b.modulation[-1] for b in self.blocks], F.silu(condition))
-        modulations = (modulations + self.scale_offset.to(modulations.dtype)).chunk(blocks, -1)
+        return modulations + self.scale_offset.to(modulations.dtype)
+
+    def forward(
+        self, tokens: Tensor, context: Tensor, condition: Tensor | None = None, *, modulations: Tensor | None = None
+    ) -> Tensor:
+        """Tokens after every block, under `condition` or under its `modulations_of` computed beforehand (a
+        sampling loop computes those of all its timesteps at once)."""
+        blocks = len(self.blocks)
+        if modulations is None:
+            modulations = self.modulations_of(condition)
+        modulations = modulations.chunk(blocks, -1)
         keys_values = linear_together(
             [b.cross_attention.key_value for b in self.blocks], self.norm_context(context)
         ).chunk(blocks, -1)

@@ -48,6 +48,26 @@ class DenoiserContext:
     scene_positions: Tensor | None  # Fourier features of the scene's points, with position_octaves
 
 
+@dataclass
+class StepConditioning:
+    """What the denoiser derives from the timestep alone: the DiT's and the output heads' modulations."""
+
+    backbone: Tensor  # (B, blocks * 9 * dim)
+    point_head: tuple[Tensor, Tensor] | None  # shift and 1 + scale, (B, dim) each
+    frame_head: tuple[Tensor, Tensor] | None
+
+    def step(self, index: int, batch: int) -> StepConditioning:
+        """Row `index` (one timestep of several computed together) for a batch of `batch` clouds: views only."""
+
+        def row(x: Tensor) -> Tensor:
+            return x[index].expand(batch, -1)
+
+        def head(modulation: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor] | None:
+            return None if modulation is None else (row(modulation[0]), row(modulation[1]))
+
+        return StepConditioning(row(self.backbone), head(self.point_head), head(self.frame_head))
+
+
 def _empty_channels(x: Tensor) -> Tensor:
     return x.new_zeros(*x.shape[:-1], 0)
 
@@ -121,8 +141,21 @@ class LocalDenoiser(nn.Module):
             scene_positions,
         )
 
+    def conditioning(self, t: Tensor) -> StepConditioning:
+        """The modulations of timesteps `t` (B,)."""
+        condition = self.timestep_embedding(t)
+        return StepConditioning(
+            self.backbone.modulations_of(condition),
+            self.point_head.modulation_of(condition) if self.point_head is not None else None,
+            self.frame_head.modulation_of(condition) if self.frame_head is not None else None,
+        )
+
     def forward(
-        self, context: DenoiserContext, goal_estimate: Tensor, shape_estimate: Tensor, t: Tensor
+        self,
+        context: DenoiserContext,
+        goal_estimate: Tensor,
+        shape_estimate: Tensor,
+        conditioning: StepConditioning,
     ) -> tuple[Tensor | None, Tensor | None]:
         n = goal_estimate.shape[1]
         if self.use_reconstruction:
@@ -153,12 +186,14 @@ class LocalDenoiser(nn.Module):
         if self.positions is not None:
             tokens = tokens + self.positions(goal_estimate).to(tokens.dtype)
             scene_tokens = scene_tokens + context.scene_positions.to(scene_tokens.dtype)
-        condition = self.timestep_embedding(t)
         if self.frame_token is not None:
             tokens = torch.cat([tokens, self.frame_token.expand(tokens.shape[0], -1, -1).to(tokens.dtype)], 1)
-        tokens = self.backbone(tokens, scene_tokens, condition)
-        point_out = self.point_head(tokens[:, :n], condition).float() if self.point_head is not None else None
-        frame_out = self.frame_head(tokens[:, n:], condition)[:, 0].float() if self.frame_head is not None else None
+        tokens = self.backbone(tokens, scene_tokens, modulations=conditioning.backbone)
+        point_out = frame_out = None
+        if self.point_head is not None:
+            point_out = self.point_head(tokens[:, :n], modulation=conditioning.point_head).float()
+        if self.frame_head is not None:
+            frame_out = self.frame_head(tokens[:, n:], modulation=conditioning.frame_head)[:, 0].float()
         return point_out, frame_out
 
 
@@ -176,9 +211,9 @@ class LocalDiffusion(nn.Module):
         self.rotation_loss_weight = config.rotation_loss_weight
         self.spread_loss_weight = config.spread_loss_weight
 
-    def _predict(self, context: DenoiserContext, state: State, t: Tensor) -> State:
+    def _predict(self, context: DenoiserContext, state: State, conditioning: StepConditioning) -> State:
         goal_estimate, shape_estimate = self.parameterization.compose(state, context.object_centred)
-        return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, t))
+        return self.parameterization.split(*self.denoiser(context, goal_estimate, shape_estimate, conditioning))
 
     def loss(
         self,
@@ -206,7 +241,8 @@ class LocalDiffusion(nn.Module):
             noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         noisy = {k: scheduler.add_noise(signal[k], noise[k], t) for k in clean}
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
-        predicted = self._predict(self.denoiser.context(object_centred, scene, layouts), noisy, t)
+        context = self.denoiser.context(object_centred, scene, layouts)
+        predicted = self._predict(context, noisy, self.denoiser.conditioning(t))
         losses = param.loss(predicted, target)
         if self.rotation_loss_weight == 0 and self.spread_loss_weight == 0:
             return losses
@@ -242,9 +278,12 @@ class LocalDiffusion(nn.Module):
         state = param.initial_state(context.object_centred, generator)
         if frame_temperature != 1.0 and "frame" in state:
             state["frame"] = state["frame"] * frame_temperature
-        for step in sampler.steps(num_inference_steps):
-            t = torch.full((scene.shape[0],), step.timestep, device=scene.device)
-            predicted = self._predict(context, state, t)
+        steps = list(sampler.steps(num_inference_steps))
+        # The timesteps are known before the loop: their modulations are computed together, once.
+        timesteps = torch.tensor([step.timestep for step in steps], device=scene.device)
+        conditionings = self.denoiser.conditioning(timesteps)
+        for index, step in enumerate(steps):
+            predicted = self._predict(context, state, conditionings.step(index, scene.shape[0]))
             state = param.project(
                 {
                     k: sampler.step(
