@@ -32,7 +32,6 @@ _SHAPE = (
     "num_scene_points",
     "point_scale",
     "object_scale",
-    "position_octaves",
 )
 _SAMPLING = ("sampler", "num_inference_steps", "num_train_timesteps", "gmm_frames", "frame_temperature")
 _TRAINING = ("prediction_type", "rotation_noise", "start_yaw_range", "start_tilt_range")
