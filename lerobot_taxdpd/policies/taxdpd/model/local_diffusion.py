@@ -44,6 +44,7 @@ class DenoiserContext:
     object_grouping: Grouping | None
     object_features: Tensor  # (B, N, dim)
     reconstruction_layout: SamplingLayout | None
+    reconstruction_flags: Tensor | None  # (B, N + M, 1): 1 on the goal estimate's points, 0 on the scene's
     scene_features: Tensor | None  # scene tokens when there is no reconstruction embedding
     scene_positions: Tensor | None  # Fourier features of the scene's points, with position_octaves
 
@@ -113,8 +114,10 @@ class LocalDenoiser(nn.Module):
         object_layout, scene_layout = layouts if layouts is not None else (None, None)
         if scene_layout is not None and scene_layout.level1.shape[0] != scene.shape[0]:
             scene_layout = scene_layout.repeat_interleave(repeats)
-        reconstruction_layout = scene_features = None
+        reconstruction_layout = reconstruction_flags = scene_features = None
         if self.use_reconstruction:
+            b, n, m = scene.shape[0], object_centred.shape[1], scene.shape[1]
+            reconstruction_flags = torch.cat([scene.new_ones(b, n, 1), scene.new_zeros(b, m, 1)], 1)
             if layouts is not None:
                 sizes = [object_centred.shape[1], scene.shape[1]]
                 reconstruction_layout = concat_layouts([object_layout.repeat_interleave(repeats), scene_layout], sizes)
@@ -137,6 +140,7 @@ class LocalDenoiser(nn.Module):
             object_grouping,
             object_features,
             reconstruction_layout,
+            reconstruction_flags,
             scene_features,
             scene_positions,
         )
@@ -160,10 +164,9 @@ class LocalDenoiser(nn.Module):
         n = goal_estimate.shape[1]
         if self.use_reconstruction:
             xyz = torch.cat([goal_estimate, context.scene], 1)
-            flags = torch.cat(
-                [xyz.new_ones(xyz.shape[0], n, 1), xyz.new_zeros(xyz.shape[0], context.scene.shape[1], 1)], 1
+            features = self.reconstruction_encoder(
+                xyz, context.reconstruction_flags, layout=context.reconstruction_layout
             )
-            features = self.reconstruction_encoder(xyz, flags, layout=context.reconstruction_layout)
             estimate_features, scene_tokens = features[:, :n], features[:, n:]
         else:
             estimate_features = self.estimate_encoder(
