@@ -9,12 +9,16 @@ whole before any frame is buffered, so a bad demo can be skipped without leaving
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import secrets
 import shutil
+import signal
 import tempfile
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,6 +32,20 @@ from lerobot_taxdpd.data.schema import OBJECT_KEY, SCENE_KEY
 CARD_INFO_FILE = "meta/taxdpd_card.json"
 
 logger = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """SIGINT and SIGTERM held back until the block ends (then delivered), where the platform allows it."""
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 @dataclass
@@ -98,8 +116,11 @@ class DatasetWriter:
         datasets.disable_progress_bars()
 
         self.root.parent.mkdir(parents=True, exist_ok=True)
-        self._partial = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.partial-", dir=self.root.parent))
+        # Named before it is made (64 random bits: no other folder has the name), so that an interrupt arriving
+        # the instant the folder exists is inside the `try` that removes it.
+        self._partial = self.root.parent / f".{self.root.name}.partial-{secrets.token_hex(8)}"
         try:
+            self._partial.mkdir()
             self._dataset = LeRobotDataset.create(
                 repo_id=self.repo_id,
                 fps=self.fps,
@@ -135,13 +156,15 @@ class DatasetWriter:
         return False
 
     def _publish(self, staged: Path) -> None:
-        """Move the finished dataset into place; an existing one is replaced only after it is complete."""
-        if not self.root.exists():
+        """Move the finished dataset into place; an existing one is replaced only after it is complete. Ctrl-C
+        waits for the two renames, so the output path never stands empty with the old dataset set aside."""
+        with _interrupts_deferred():
+            if not self.root.exists():
+                os.replace(staged, self.root)
+                return
+            previous = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.previous-", dir=self.root.parent))
+            os.replace(self.root, previous / "dataset")
             os.replace(staged, self.root)
-            return
-        previous = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.previous-", dir=self.root.parent))
-        os.replace(self.root, previous / "dataset")
-        os.replace(staged, self.root)
         shutil.rmtree(previous, ignore_errors=True)
 
     # ---------------------------------------------------------------------------------------- writing

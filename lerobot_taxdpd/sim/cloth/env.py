@@ -10,7 +10,6 @@ velocities (12-d).
 from __future__ import annotations
 
 import math
-import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,7 +104,6 @@ class ClothHangEnv(gym.Env):
         limit = self.settings.max_gripper_step
         self.action_space = gym.spaces.Box(-limit, limit, (6,), np.float32)
         self._client = p.connect(p.DIRECT)
-        self._tmpdir = Path(tempfile.mkdtemp(prefix="cloth_hang-"))
         self.scene: ClothScene | None = None
         self.mesh: ClothMesh | None = None
         self.samples: SurfaceSamples | None = None
@@ -173,7 +171,6 @@ class ClothHangEnv(gym.Env):
         if self._client is not None and p.isConnected(self._client):
             p.disconnect(self._client)
         self._client = None
-        shutil.rmtree(self._tmpdir, ignore_errors=True)
 
     # -------------------------------------------------------------------------------- observations
     def observation(self) -> dict[str, np.ndarray]:
@@ -225,25 +222,27 @@ class ClothHangEnv(gym.Env):
         self.scene = scene
         self.mesh = build_cloth_mesh(scene.node_density, scene.cloth_width, scene.cloth_height, list(scene.holes))
         vertices = cloth_world_vertices(self.mesh, scene)
-        # pybullet caches meshes by file name: every episode needs a file of its own.
+        # pybullet caches meshes by file name: every episode needs a file of its own. The file lives only while it
+        # loads, so a process that is killed (a pool's worker) leaves no folder behind.
         self._builds += 1
-        obj = self._tmpdir / f"cloth-{self._builds}.obj"
-        write_obj(obj, vertices, self.mesh.faces)
-        self._cloth = p.loadSoftBody(
-            str(obj),
-            mass=s.cloth_mass,
-            collisionMargin=s.collision_margin,
-            useMassSpring=1,
-            useBendingSprings=1,
-            springElasticStiffness=s.elastic_stiffness,
-            springDampingStiffness=s.damping_stiffness,
-            springDampingAllDirections=int(s.damp_all_directions),
-            springBendingStiffness=s.bending_stiffness,
-            frictionCoeff=s.friction,
-            useSelfCollision=int(s.self_collision),
-            useFaceContact=1,
-            physicsClientId=cid,
-        )
+        with tempfile.TemporaryDirectory(prefix="cloth_hang-") as folder:
+            obj = Path(folder) / f"cloth-{self._builds}.obj"
+            write_obj(obj, vertices, self.mesh.faces)
+            self._cloth = p.loadSoftBody(
+                str(obj),
+                mass=s.cloth_mass,
+                collisionMargin=s.collision_margin,
+                useMassSpring=1,
+                useBendingSprings=1,
+                springElasticStiffness=s.elastic_stiffness,
+                springDampingStiffness=s.damping_stiffness,
+                springDampingAllDirections=int(s.damp_all_directions),
+                springBendingStiffness=s.bending_stiffness,
+                frictionCoeff=s.friction,
+                useSelfCollision=int(s.self_collision),
+                useFaceContact=1,
+                physicsClientId=cid,
+            )
         self._grippers, self._anchors = [], []
         for vertex in self.mesh.corner_vertices:
             body = p.createMultiBody(0, -1, -1, vertices[vertex].tolist(), physicsClientId=cid)
