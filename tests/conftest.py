@@ -6,6 +6,7 @@ is inherited by the CLI subprocesses the tests start (`lerobot-train`, converter
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import shutil
@@ -17,6 +18,9 @@ from pathlib import Path
 import pytest
 
 _HF_HOME = Path(tempfile.mkdtemp(prefix="taxdpd-tests-hf-"))
+# Removed when this process ends, whatever ends it short of a kill (every process that imports this file, the
+# pytest controller and each worker, makes its own; a usage error ends pytest before its own hooks run).
+atexit.register(shutil.rmtree, _HF_HOME, ignore_errors=True)
 os.environ["HF_HOME"] = str(_HF_HOME)
 os.environ["HF_LEROBOT_HOME"] = str(_HF_HOME / "lerobot")
 os.environ["HF_HUB_OFFLINE"] = "1"
@@ -95,11 +99,6 @@ def hf_home() -> Path:
 def cli():
     """`run_cli` as a fixture (a dependency installs its own top-level `tests` package, so don't import it)."""
     return run_cli
-
-
-def pytest_unconfigure(config) -> None:
-    """Remove the session's Hugging Face home (every process that imported this file made its own)."""
-    shutil.rmtree(_HF_HOME, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(config, items) -> None:
