@@ -119,8 +119,7 @@ class LocalDenoiser(nn.Module):
             b, n, m = scene.shape[0], object_centred.shape[1], scene.shape[1]
             reconstruction_flags = torch.cat([scene.new_ones(b, n, 1), scene.new_zeros(b, m, 1)], 1)
             if layouts is not None:
-                sizes = [object_centred.shape[1], scene.shape[1]]
-                reconstruction_layout = concat_layouts([object_layout.repeat_interleave(repeats), scene_layout], sizes)
+                reconstruction_layout = concat_layouts([object_layout.repeat_interleave(repeats), scene_layout], [n, m])
         else:
             scene_features = self.scene_encoder(scene, _empty_channels(scene), layout=scene_layout)
         object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
