@@ -8,6 +8,7 @@ import torch
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
 from lerobot_taxdpd.maths.geometry import device_code_paths, estimate_rigid_transform, farthest_point_sample
+from lerobot_taxdpd.policies.taxdpd.model import pointnet2
 from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import make_encoder
 from lerobot_taxdpd.reports.launches import LaunchCounter
 
@@ -111,20 +112,45 @@ def test_an_amp_step_casts_the_linear_weights_together_and_computes_the_same_ste
 
 
 def test_a_point_encoder_under_autocast_casts_its_clouds_once():
-    """Coordinates cast once to the layers' dtype, not at every concatenation with bf16 features: three casts a
-    pass (the clouds, the two interpolation weights), and the same features as the clouds handed over in bf16."""
+    """Coordinates cast once to the layers' dtype, not at every concatenation with bf16 features: with a grouping
+    cast once for the passes that reuse it, one cast a pass (the cloud); with a fresh fp32 one, five (the cloud,
+    both levels' centroids, the two interpolation weights, each in place of the gather it replaces); the same
+    features either way and as the clouds handed over in bf16."""
     encoder = make_encoder(_small_policy().config, in_channels=9).to(torch.bfloat16)  # bf16 weights, as sampling has
     g = torch.Generator().manual_seed(3)
     xyz, features = torch.rand(2, 32, 3, generator=g), torch.rand(2, 32, 9, generator=g)
     layout = encoder.layout([xyz])
-    counter = LaunchCounter()
+    casts = {}
     with torch.autocast("cpu", dtype=torch.bfloat16), torch.no_grad():
         grouping = encoder.group(xyz, layout)
-        with counter:
-            out = encoder(xyz, features, layout=layout, grouping=grouping)
+        outputs = {}
+        for name, given in {"fresh": grouping, "cast": grouping.cast(encoder.compute_dtype(xyz))}.items():
+            counter = LaunchCounter()
+            with counter:
+                outputs[name] = encoder(xyz, features, layout=layout, grouping=given)
+            casts[name] = sum(c["_to_copy"] for c in counter.ops.values())
         handed_bf16 = encoder(xyz.bfloat16(), features.bfloat16(), layout=layout, grouping=grouping)
-    assert sum(c["_to_copy"] for c in counter.ops.values()) <= 3, counter.ops
-    assert out.dtype == torch.bfloat16 and torch.equal(out, handed_bf16)
+    assert casts == {"fresh": 5, "cast": 1}
+    assert outputs["cast"].dtype == torch.bfloat16
+    assert torch.equal(outputs["cast"], outputs["fresh"]) and torch.equal(outputs["cast"], handed_bf16)
+
+
+def test_the_object_is_grouped_once_for_both_stages(monkeypatch):
+    """Both stages' object encoders and the deformation encoder see the same centred object with the same layout,
+    so one grouping (distances, neighbourhoods, weights: about 24 launches) serves them all: a training step groups
+    three clouds (the object, the GMM's scene, the reconstruction cloud), a sampling call the object and the scene
+    once and the reconstruction cloud at each of its denoising steps."""
+    built = []
+    build = pointnet2.build_grouping
+    monkeypatch.setattr(pointnet2, "build_grouping", lambda xyz, *args: built.append(xyz.shape) or build(xyz, *args))
+    policy = _small_policy().train()
+    g = torch.Generator().manual_seed(1)
+    obj = torch.rand(4, 32, 3, generator=g) * 0.1
+    policy.forward({OBJECT_KEY: obj, SCENE_KEY: torch.rand(4, 64, 3, generator=g), ACTION_KEY: obj + 0.3})
+    assert len(built) == 3, built
+    built.clear()
+    policy.eval().sample_goals(obj[:1], torch.rand(1, 64, 3, generator=g), 10)
+    assert len(built) == 2 + policy.config.num_inference_steps, built
 
 
 @pytest.mark.parametrize("overrides", [{}, {"local_scene_points": 48}], ids=["whole-scene", "local-scene"])

@@ -10,6 +10,7 @@ from lerobot_taxdpd.policies.taxdpd.schedulers import (
     make_training_scheduler,
     training_target,
 )
+from lerobot_taxdpd.reports.launches import LaunchCounter
 
 
 def _config(prediction_type: str = "sample") -> TaxDPDConfig:
@@ -67,3 +68,17 @@ def test_the_float_coefficient_sampler_takes_diffusers_ddim_steps(prediction_typ
             taken = sampler.step(output, step, sample, eta, noise)
             torch.testing.assert_close(taken, expected, rtol=1e-5, atol=1e-5)
             sample = expected
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample", "v_prediction"])
+def test_a_deterministic_ddim_step_is_one_linear_combination(prediction_type):
+    """Two launches a step (a product and a scaled sum) whatever the target: on a GPU each op of the update
+    is a kernel launch between the denoiser's passes."""
+    sampler = DDIMSampler(_config(prediction_type))
+    g = torch.Generator().manual_seed(2)
+    sample, output = torch.randn(4, 32, 3, generator=g), torch.randn(4, 32, 3, generator=g)
+    for step in sampler.steps(10):
+        counter = LaunchCounter()
+        with counter:
+            sampler.step(output, step, sample)
+        assert counter.total_ops() == 2, counter.ops

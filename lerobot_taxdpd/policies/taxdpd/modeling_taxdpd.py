@@ -64,7 +64,7 @@ from lerobot_taxdpd.policies.taxdpd.model.dense_gmm import DenseGMM
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT
 from lerobot_taxdpd.policies.taxdpd.model.local_diffusion import LocalDiffusion
 from lerobot_taxdpd.policies.taxdpd.model.parameterizations import randn_like
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, cloud_layouts, concat_layouts
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, cloud_layouts, concat_layouts
 from lerobot_taxdpd.policies.taxdpd.model_card import render_model_card
 
 logger = logging.getLogger(__name__)
@@ -93,11 +93,25 @@ class TaxDPDModel(nn.Module):
         self.local_stage = LocalDiffusion(config)
 
     def _gmm(
-        self, object_points: Tensor, scene_points: Tensor, layouts: list[SamplingLayout] | None
+        self,
+        object_points: Tensor,
+        scene_points: Tensor,
+        layouts: list[SamplingLayout] | None,
+        object_grouping: Grouping | None = None,
     ) -> tuple[Tensor, Tensor]:
         """Mixing logits (B, M) and component means (B, M, 3)."""
         object_centroid = object_points.mean(1)
-        return self.global_stage(object_points - object_centroid.unsqueeze(1), scene_points, object_centroid, layouts)
+        return self.global_stage(
+            object_points - object_centroid.unsqueeze(1), scene_points, object_centroid, layouts, object_grouping
+        )
+
+    def _object_grouping(self, object_centred: Tensor, layouts: list[SamplingLayout] | None) -> Grouping | None:
+        """The centred object's grouping, which both stages' object encoders and the deformation encoder share
+        (same cloud, layout and radii), in the layers' dtype; None for the MLP encoders."""
+        if layouts is None:
+            return None
+        encoder = self.local_stage.denoiser.object_encoder
+        return encoder.group(object_centred, layouts[0]).cast(encoder.compute_dtype(object_centred))
 
     def forward(
         self,
@@ -124,12 +138,14 @@ class TaxDPDModel(nn.Module):
             clouds.append(self._local_scene(dense_scene if dense_scene is not None else scene_points, frame))
             ordered.append(False)
         layouts = cloud_layouts(self.config, clouds, ordered)  # one FPS pass serves both stages
+        object_grouping = self._object_grouping(object_centred, layouts)
         if self.global_stage is not None:
             # The Dense GMM learns from the first part of the (shuffled) batch only: it converges long before
             # the local stage, so the rest of its share of the step is better spent on the local stage.
             n = max(1, round(target.shape[0] * self.config.gmm_batch_fraction))
             head = [layout.head(n) for layout in layouts[:2]] if layouts is not None else None
-            logits, means = self._gmm(object_points[:n], scene_points[:n], head)
+            grouping = object_grouping.head(n) if object_grouping is not None else None
+            logits, means = self._gmm(object_points[:n], scene_points[:n], head, grouping)
             losses["loss_gmm"] = self.global_stage.loss(logits, means, target[:n])
         frame = frame.unsqueeze(1)
         local_scene, scene_layout = self._local_stage_scene(
@@ -137,7 +153,13 @@ class TaxDPDModel(nn.Module):
         )
         local_layouts = [layouts[0], scene_layout] if layouts is not None else None
         losses.update(
-            self.local_stage.loss(object_centred, local_scene - frame, goal_points - frame, layouts=local_layouts)
+            self.local_stage.loss(
+                object_centred,
+                local_scene - frame,
+                goal_points - frame,
+                layouts=local_layouts,
+                object_grouping=object_grouping,
+            )
         )
         losses["loss"] = losses["loss_local"] + losses.get("loss_gmm", 0.0)
         return losses
@@ -192,10 +214,11 @@ class TaxDPDModel(nn.Module):
         b, n, _ = object_points.shape
         object_centred = object_points - object_points.mean(1, keepdim=True)
         layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
+        object_grouping = self._object_grouping(object_centred, layouts)
         if frames is not None:
             frames = frames.to(scene_points).unsqueeze(1).expand(b, num_samples, 3)
         elif self.global_stage is not None:
-            logits, means = self._gmm(object_points, scene_points, layouts)
+            logits, means = self._gmm(object_points, scene_points, layouts, object_grouping)
             probabilities = torch.softmax(logits.float(), -1)
             if generator is not None:
                 probabilities = probabilities.to(generator.device)
@@ -224,6 +247,7 @@ class TaxDPDModel(nn.Module):
             eta=eta,
             generator=generator,
             layouts=layouts,
+            object_grouping=object_grouping,
             frame_temperature=frame_temperature,
         )
         return (goals + frames).reshape(b, num_samples, n, 3)
@@ -504,6 +528,8 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
             for module in cast.modules():
                 if isinstance(module, nn.Linear):
                     module.to(torch.bfloat16)
+            if cast.local_stage.denoiser.frame_token is not None:  # joins the bf16 tokens at every step
+                cast.local_stage.denoiser.frame_token.data = cast.local_stage.denoiser.frame_token.data.bfloat16()
             if self.config.compile_mode is not None:
                 compile_networks(cast, self.config.compile_mode)
             self._cast_model = (key, cast)  # a tuple: not registered as a submodule, never saved

@@ -71,19 +71,21 @@ class DDIMSampler:
     def step(
         self, model_output: Tensor, step: DDIMStep, sample: Tensor, eta: float = 0.0, noise: Tensor | None = None
     ) -> Tensor:
-        """The sample at the previous timestep; `noise` (standard normal) is needed when `eta` > 0."""
+        """The sample at the previous timestep; `noise` (standard normal) is needed when `eta` > 0.
+
+        The clean estimate and the noise are both linear in (sample, model output), so the update is one
+        linear combination of the two (two launches) with its coefficients worked out in Python."""
         a, a_prev = step.alpha_bar, step.alpha_bar_prev
+        # (clean, epsilon) = (c_s * sample + c_o * model_output, e_s * sample + e_o * model_output)
         if self.prediction_type == "epsilon":
-            epsilon = model_output
-            clean = (sample - math.sqrt(1 - a) * model_output) / math.sqrt(a)
+            c_s, c_o, e_s, e_o = 1 / math.sqrt(a), -math.sqrt(1 - a) / math.sqrt(a), 0.0, 1.0
         elif self.prediction_type == "sample":
-            clean = model_output
-            epsilon = (sample - math.sqrt(a) * model_output) / math.sqrt(1 - a)
+            c_s, c_o, e_s, e_o = 0.0, 1.0, 1 / math.sqrt(1 - a), -math.sqrt(a) / math.sqrt(1 - a)
         else:  # v_prediction
-            clean = math.sqrt(a) * sample - math.sqrt(1 - a) * model_output
-            epsilon = math.sqrt(a) * model_output + math.sqrt(1 - a) * sample
+            c_s, c_o, e_s, e_o = math.sqrt(a), -math.sqrt(1 - a), math.sqrt(1 - a), math.sqrt(a)
         std = eta * math.sqrt((1 - a_prev) / (1 - a) * (1 - a / a_prev))
-        previous = math.sqrt(a_prev) * clean + math.sqrt(max(1 - a_prev - std**2, 0.0)) * epsilon
+        keep, towards = math.sqrt(a_prev), math.sqrt(max(1 - a_prev - std**2, 0.0))
+        previous = (sample * (keep * c_s + towards * e_s)).add_(model_output, alpha=keep * c_o + towards * e_o)
         return previous + std * noise if std > 0 else previous
 
 

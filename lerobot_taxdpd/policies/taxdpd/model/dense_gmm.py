@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_taxdpd.policies.taxdpd.model.dit import DiT, OutputHead
-from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import SamplingLayout, make_encoder
+from lerobot_taxdpd.policies.taxdpd.model.pointnet2 import Grouping, SamplingLayout, make_encoder
 
 
 class DenseGMM(nn.Module):
@@ -36,15 +36,20 @@ class DenseGMM(nn.Module):
         scene_centred: Tensor,
         offset: Tensor,
         layouts: list[SamplingLayout] | None = None,
+        object_grouping: Grouping | None = None,
     ) -> tuple[Tensor, Tensor]:
         """object_centred (B, N, 3), scene_centred (B, M, 3), offset = object centroid - scene centroid (B, 3);
-        `layouts`: the object's and the scene's FPS layouts, when the caller shares them with the local stage.
+        `layouts`: the object's and the scene's FPS layouts, `object_grouping` the object's grouping, when the
+        caller shares them with the local stage.
 
         Returns mixing logits (B, M) and component means (B, M, 3) in the scene-centred frame.
         """
         object_layout, scene_layout = layouts if layouts is not None else (None, None)
         object_tokens = self.object_encoder(
-            object_centred, object_centred.new_zeros(*object_centred.shape[:2], 0), layout=object_layout
+            object_centred,
+            object_centred.new_zeros(*object_centred.shape[:2], 0),
+            layout=object_layout,
+            grouping=object_grouping,
         )
         condition = self.condition + self.offset_embedding(offset)
         scene_tokens = self.scene_encoder(

@@ -99,14 +99,19 @@ class LocalDenoiser(nn.Module):
         self.frame_head = OutputHead(dim, frame_dim) if frame_dim else None
 
     def context(
-        self, object_centred: Tensor, scene: Tensor, layouts: list[SamplingLayout] | None = None
+        self,
+        object_centred: Tensor,
+        scene: Tensor,
+        layouts: list[SamplingLayout] | None = None,
+        object_grouping: Grouping | None = None,
     ) -> DenoiserContext:
         """Cache the work that does not depend on the goal estimate.
 
         `object_centred` is (B, N, 3); `scene` may hold K placement frames per object, (B * K, M, 3): K
         translated copies of each scene, or K local scenes, one around each frame. Object-only work is done once
         per object and repeated. `layouts` are the object's (B rows) and the scene's, when the caller has them
-        already: B rows for translated copies (FPS does not change under translation), B * K for local scenes.
+        already: B rows for translated copies (FPS does not change under translation), B * K for local scenes;
+        `object_grouping` the object's grouping (B rows), when the caller shares it with the Dense GMM.
         """
         repeats = scene.shape[0] // object_centred.shape[0]
         if layouts is None:
@@ -122,7 +127,10 @@ class LocalDenoiser(nn.Module):
                 reconstruction_layout = concat_layouts([object_layout.repeat_interleave(repeats), scene_layout], [n, m])
         else:
             scene_features = self.scene_encoder(scene, _empty_channels(scene), layout=scene_layout)
-        object_grouping = self.object_encoder.group(object_centred, object_layout) if object_layout else None
+        if object_grouping is None and object_layout is not None:
+            object_grouping = self.object_encoder.group(object_centred, object_layout)
+        if object_grouping is not None:  # every pass of the object and deformation encoders reuses it
+            object_grouping = object_grouping.cast(self.object_encoder.compute_dtype(object_centred))
         object_features = self.object_encoder(
             object_centred, _empty_channels(object_centred), layout=object_layout, grouping=object_grouping
         )
@@ -192,8 +200,8 @@ class LocalDenoiser(nn.Module):
             tokens = torch.cat([tokens, self.frame_token.expand(tokens.shape[0], -1, -1).to(tokens.dtype)], 1)
         tokens = self.backbone(tokens, scene_tokens, modulations=conditioning.backbone)
         point_out = frame_out = None
-        if self.point_head is not None:
-            point_out = self.point_head(tokens[:, :n], modulation=conditioning.point_head).float()
+        if self.point_head is not None:  # in the layers' dtype: the parameterisation's split makes it fp32
+            point_out = self.point_head(tokens[:, :n], modulation=conditioning.point_head)
         if self.frame_head is not None:
             frame_out = self.frame_head(tokens[:, n:], modulation=conditioning.frame_head)[:, 0].float()
         return point_out, frame_out
@@ -224,6 +232,7 @@ class LocalDiffusion(nn.Module):
         goal: Tensor,
         generator: torch.Generator | None = None,
         layouts: list[SamplingLayout] | None = None,
+        object_grouping: Grouping | None = None,
     ) -> dict[str, Tensor]:
         """Denoising losses for clean goals (B, N, 3) in the placement frame, against the configured target."""
         param, scheduler = self.parameterization, self.training_scheduler
@@ -243,7 +252,7 @@ class LocalDiffusion(nn.Module):
             noise = param.sample_noise(clean, self.rotation_noise_std, generator)
         noisy = {k: scheduler.add_noise(signal[k], noise[k], t) for k in clean}
         target = {k: training_target(scheduler, clean[k], noise[k], t) for k in clean}
-        context = self.denoiser.context(object_centred, scene, layouts)
+        context = self.denoiser.context(object_centred, scene, layouts, object_grouping)
         predicted = self._predict(context, noisy, self.denoiser.conditioning(t))
         losses = param.loss(predicted, target)
         if self.rotation_loss_weight == 0 and self.spread_loss_weight == 0:
@@ -271,11 +280,12 @@ class LocalDiffusion(nn.Module):
         eta: float = 0.0,
         generator: torch.Generator | None = None,
         layouts: list[SamplingLayout] | None = None,
+        object_grouping: Grouping | None = None,
         frame_temperature: float = 1.0,
     ) -> Tensor:
         """Goal clouds (B * K, N, 3) in the placement frames of `scene` (B * K, M, 3). The frame's starting
         noise is scaled by `frame_temperature` (`TaxDPDConfig.frame_temperature`); the shape's is not."""
-        context = self.denoiser.context(object_centred, scene, layouts)
+        context = self.denoiser.context(object_centred, scene, layouts, object_grouping)
         param, sampler = self.parameterization, self.sampler
         state = param.initial_state(context.object_centred, generator)
         if frame_temperature != 1.0 and "frame" in state:
@@ -286,12 +296,10 @@ class LocalDiffusion(nn.Module):
         conditionings = self.denoiser.conditioning(timesteps)
         for index, step in enumerate(steps):
             predicted = self._predict(context, state, conditionings.step(index, scene.shape[0]))
-            state = param.project(
-                {
-                    k: sampler.step(
-                        predicted[k], step, state[k], eta, randn_like(state[k], generator) if eta > 0 else None
-                    )
-                    for k in state
-                }
-            )
+            state = {
+                k: sampler.step(predicted[k], step, state[k], eta, randn_like(state[k], generator) if eta > 0 else None)
+                for k in state
+            }
+            if eta > 0:  # without noise the update combines the state and a prediction, both projected already
+                state = param.project(state)
         return param.compose(state, context.object_centred)[0]

@@ -82,7 +82,9 @@ class DisentangledPoints:
         return state["shape"] + state["frame"], state["shape"]
 
     def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
-        return {"frame": frame_out.unsqueeze(1), "shape": _centre(point_out)}
+        # Centred in fp32 without a cast of its own: the mean accumulates in fp32 and the difference promotes.
+        shape = point_out - point_out.mean(1, keepdim=True, dtype=torch.float32)
+        return {"frame": frame_out.unsqueeze(1), "shape": shape}
 
     def centred_shape(self, state: State) -> Tensor:
         return state["shape"]
@@ -120,7 +122,7 @@ class JointPoints:
         return state["points"], _centre(state["points"])
 
     def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
-        return {"points": point_out}
+        return {"points": point_out.float()}
 
     def centred_shape(self, state: State) -> Tensor:
         return _centre(state["points"])

@@ -44,21 +44,40 @@ class SamplingLayout:
 
 @dataclass
 class Grouping:
+    """What a PointNet++ pass derives from the coordinates alone: the centroids of both levels, their
+    ball-query neighbourhoods and the 3-NN interpolation weights back down. Built in fp32; `cast` gives the
+    coordinates and weights the layers' dtype once for a grouping that many passes reuse."""
+
+    centres1: Tensor  # (B, M1, 3) level-1 centroids
+    centres2: Tensor  # (B, M2, 3) level-2 centroids
     neighbors1: Tensor  # (B, M1, K) indices into the points
     neighbors2: Tensor  # (B, M2, K) indices into the level-1 centroids
     to_level1: tuple[Tensor, Tensor]  # 3-NN (indices into level 2, weights) for each level-1 centroid
     to_points: tuple[Tensor, Tensor]  # 3-NN (indices into level 1, weights) for each point
 
+    def _map(self, coordinates, indices) -> Grouping:
+        return Grouping(
+            coordinates(self.centres1),
+            coordinates(self.centres2),
+            indices(self.neighbors1),
+            indices(self.neighbors2),
+            (indices(self.to_level1[0]), coordinates(self.to_level1[1])),
+            (indices(self.to_points[0]), coordinates(self.to_points[1])),
+        )
+
     def repeat_interleave(self, repeats: int) -> Grouping:
         def rep(x: Tensor) -> Tensor:
             return x.repeat_interleave(repeats, 0)
 
-        return Grouping(
-            rep(self.neighbors1),
-            rep(self.neighbors2),
-            (rep(self.to_level1[0]), rep(self.to_level1[1])),
-            (rep(self.to_points[0]), rep(self.to_points[1])),
-        )
+        return self if repeats == 1 else self._map(rep, rep)
+
+    def head(self, n: int) -> Grouping:
+        """The grouping of the first `n` clouds of the batch."""
+        return self._map(lambda x: x[:n], lambda x: x[:n])
+
+    def cast(self, dtype: torch.dtype) -> Grouping:
+        """The centroids and interpolation weights in `dtype` (what the layers would cast them to each pass)."""
+        return self._map(lambda x: x.to(dtype), lambda x: x)
 
 
 def centroid_count(n: int, ratio: float) -> int:
@@ -122,25 +141,22 @@ def sampling_layout(parts: Sequence[Tensor], ratios: tuple[float, float]) -> Sam
     return concat_layouts(part_layouts(parts, ratios), [part.shape[1] for part in parts])
 
 
-def _square_distances(a: Tensor, b: Tensor) -> Tensor:
-    return ((a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(-2) - 2.0 * a @ b.transpose(-1, -2)).clamp_min(
-        0.0
-    )
+def _distances(a: Tensor, b: Tensor) -> Tensor:
+    """Euclidean distances (B, P, R) between points a (B, P, 3) and b (B, R, 3) in one kernel: the expansion
+    |a|^2 + |b|^2 - 2 a.b through a matrix product takes nine launches and rounds near-zero distances worse."""
+    return torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist")
 
 
 def _ball_query(centres: Tensor, points: Tensor, radius: float, max_neighbors: int) -> Tensor:
     """Up to `max_neighbors` nearest points within `radius` of each centre; out-of-ball slots repeat the nearest."""
-    d2 = _square_distances(centres, points)
-    k = min(max_neighbors, points.shape[1])
-    dist, idx = d2.topk(k, dim=-1, largest=False)
-    return torch.where(dist <= radius * radius, idx, idx[..., :1])
+    dist, idx = _distances(centres, points).topk(min(max_neighbors, points.shape[1]), dim=-1, largest=False)
+    return torch.where(dist <= radius, idx, idx[..., :1])
 
 
 def _three_nn(targets: Tensor, sources: Tensor) -> tuple[Tensor, Tensor]:
-    """Inverse-distance weights of the 3 nearest sources of every target."""
-    d2 = _square_distances(targets, sources)
-    dist, idx = d2.topk(min(3, sources.shape[1]), dim=-1, largest=False)
-    weights = 1.0 / (dist + 1e-8)
+    """Inverse-square-distance weights of the 3 nearest sources of every target."""
+    dist, idx = _distances(targets, sources).topk(min(3, sources.shape[1]), dim=-1, largest=False)
+    weights = dist.square().add_(1e-8).reciprocal_()
     return idx, weights / weights.sum(-1, keepdim=True)
 
 
@@ -152,6 +168,8 @@ def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, floa
         centres1 = gather_points(xyz, layout.level1)
         centres2 = gather_points(centres1, layout.level2)
         return Grouping(
+            centres1=centres1,
+            centres2=centres2,
             neighbors1=_ball_query(centres1, xyz, radii[0], max_neighbors),
             neighbors2=_ball_query(centres2, centres1, radii[1], max_neighbors),
             to_level1=_three_nn(centres1, centres2),
@@ -160,9 +178,10 @@ def build_grouping(xyz: Tensor, layout: SamplingLayout, radii: tuple[float, floa
 
 
 def interpolate(features: Tensor, weights: tuple[Tensor, Tensor]) -> Tensor:
-    """Values at every point from values (B, M1, C) at its 3 nearest centroids (inverse-distance weights)."""
+    """Values at every point from values (B, M1, C) at its 3 nearest centroids (inverse-square-distance weights), the
+    weighted sum as one batched product (B, N, 1, 3) @ (B, N, 3, C) instead of a product and a sum."""
     idx, w = weights
-    return (gather_points(features, idx) * w.unsqueeze(-1).to(features.dtype)).sum(-2)
+    return (w.unsqueeze(-2).to(features.dtype) @ gather_points(features, idx)).squeeze(-2)
 
 
 def _mlp(widths: Sequence[int], final_activation: bool = True) -> nn.Sequential:
@@ -222,7 +241,7 @@ class PointNet2Encoder(nn.Module):
         """Centroids chosen per part (e.g. [object, scene]) of the concatenated cloud."""
         return sampling_layout(parts, self.ratios)
 
-    def _compute_dtype(self, xyz: Tensor) -> torch.dtype:
+    def compute_dtype(self, xyz: Tensor) -> torch.dtype:
         """The dtype the linear layers compute in: autocast's where it is on, else the weights'."""
         if torch.is_autocast_enabled(xyz.device.type):
             return torch.get_autocast_dtype(xyz.device.type)
@@ -234,16 +253,14 @@ class PointNet2Encoder(nn.Module):
     def forward(
         self, xyz: Tensor, features: Tensor, layout: SamplingLayout | None = None, grouping: Grouping | None = None
     ) -> Tensor:
-        if layout is None:
-            layout = self.layout([xyz])
         if grouping is None:
-            grouping = self.group(xyz, layout)  # in fp32, from the coordinates as given
+            grouping = self.group(xyz, layout if layout is not None else self.layout([xyz]))  # fp32
         # The layers compute in one dtype (bf16 under autocast): the coordinates are cast to it once, here, so
         # that no concatenation of coordinates with features promotes and casts back, at no change of value.
-        point_features = torch.cat([xyz, features], -1).to(self._compute_dtype(xyz))
+        dtype = self.compute_dtype(xyz)
+        point_features = torch.cat([xyz, features], -1).to(dtype)
         xyz = point_features[..., :3]
-        centres1 = gather_points(xyz, layout.level1)
-        centres2 = gather_points(centres1, layout.level2)
+        centres1, centres2 = grouping.centres1.to(dtype), grouping.centres2.to(dtype)
         f1 = self.sa1(xyz, point_features, centres1, grouping.neighbors1)
         f2 = self.sa2(centres1, f1, centres2, grouping.neighbors2)
         global_feature = self.global_sa(torch.cat([centres2, f2], -1)).amax(dim=1, keepdim=True)
