@@ -3,13 +3,16 @@ model without them, trains them, and keeps them through a checkpoint."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 
 from lerobot_taxdpd import TaxDPDConfig, TaxDPDPolicy
 from lerobot_taxdpd.data.schema import ACTION_KEY, OBJECT_KEY, SCENE_KEY
+from lerobot_taxdpd.policies.checkpoints import CheckpointError
 from lerobot_taxdpd.policies.taxdpd.model.positions import BASE_FREQUENCY, FourierPositions
 
 
@@ -90,3 +93,23 @@ def test_the_positions_are_trained_and_change_the_goals(tmp_path):
 def test_octaves_it_cannot_serve_are_refused_by_name(octaves):
     with pytest.raises(ValueError, match="position_octaves: an integer in"):
         TaxDPDConfig.for_point_clouds(32, 64, position_octaves=octaves)
+
+
+def test_a_predictor_saved_without_positions_fine_tunes_with_them(tmp_path):
+    """`lerobot-train --policy.path=SHIPPED --policy.position_octaves=N` (what `sim pretrain --init-from` runs): the
+    file's model has no projection, the new one starts at zero and so samples as the file's model did. A file
+    saved with the switch on but without its projection is refused as damaged."""
+    plain = _randomised(_policy()).eval()
+    plain.save_pretrained(tmp_path / "plain")
+    switched_on = dataclasses.replace(plain.config, position_octaves=6)
+    tuned = TaxDPDPolicy.from_pretrained(tmp_path / "plain", config=switched_on).eval()
+    assert tuned.config.position_octaves == 6
+    obj, scene = _clouds()
+    goals = [p.sample_goals(obj, scene, 3, generator=torch.Generator().manual_seed(1)) for p in (plain, tuned)]
+    torch.testing.assert_close(goals[0], goals[1])
+
+    _policy(position_octaves=6).save_pretrained(tmp_path / "damaged")
+    weights = tmp_path / "damaged" / "model.safetensors"
+    save_file({n: t for n, t in load_file(weights).items() if ".positions." not in n}, weights)
+    with pytest.raises(CheckpointError, match=r"model\.safetensors: does not fit.*positions\.projection"):
+        TaxDPDPolicy.from_pretrained(tmp_path / "damaged")

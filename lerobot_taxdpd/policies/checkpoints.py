@@ -89,11 +89,20 @@ def _listed(names: list[str]) -> str:
     return shown + (f" and {len(names) - 5} more" if len(names) > 5 else "")
 
 
-def check_weights(model: torch.nn.Module, weights: dict[str, torch.Tensor], model_file: str | Path) -> None:
-    """Refuse weights that do not fit `model` name for name and shape, or that hold NaN or inf."""
+def check_weights(
+    model: torch.nn.Module, weights: dict[str, torch.Tensor], model_file: str | Path, may_lack: tuple[str, ...] = ()
+) -> None:
+    """Refuse weights that do not fit `model` name for name and shape, or that hold NaN or inf. Tensors whose
+    names contain one of `may_lack` may be absent (modules the file's model did not have; see `CheckedLoading`)."""
     expected = model.state_dict()
     has_ema = any(name.startswith(EMA_PREFIXES) for name in weights)
-    missing = [n for n in expected if n not in weights and (has_ema or not n.startswith(EMA_PREFIXES))]
+    missing = [
+        n
+        for n in expected
+        if n not in weights
+        and (has_ema or not n.startswith(EMA_PREFIXES))
+        and not any(fragment in n for fragment in may_lack)
+    ]
     unexpected = [n for n in weights if n not in expected and not n.startswith(EMA_PREFIXES)]
     if missing or unexpected:
         raise CheckpointError(
@@ -114,7 +123,14 @@ def check_weights(model: torch.nn.Module, weights: dict[str, torch.Tensor], mode
 
 
 class CheckedLoading:
-    """Mixin for a `PreTrainedPolicy` (listed before it): strict, clear loading of config and weights."""
+    """Mixin for a `PreTrainedPolicy` (listed before it): strict, clear loading of config and weights.
+
+    `ZERO_START_MODULES` (config field -> a fragment of its modules' tensor names) lists modules that a switch
+    adds and that start as the model without them (zero-initialised outputs). A file whose own config.json has
+    the switch off lacks them and loads into a policy with it on, which then starts as the file's model: fine-
+    tuning a shipped predictor with the switch. A file saved with the switch on must hold them."""
+
+    ZERO_START_MODULES: dict[str, str] = {}
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path, *, config: PreTrainedConfig | None = None, **kwargs):
@@ -132,8 +148,15 @@ class CheckedLoading:
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
         weights = read_weights(model_file)
-        check_weights(model, weights, model_file)
+        check_weights(model, weights, model_file, cls._switched_off_in(model_file))
         model.load_state_dict(weights, strict=False)  # exact but for an average the file does not hold
         if getattr(model.config, "use_ema", False) and not any(n.startswith(EMA_PREFIXES) for n in weights):
             model.ema_model.load_state_dict(model.model.state_dict())
         return model.to(map_location)
+
+    @classmethod
+    def _switched_off_in(cls, model_file: str) -> tuple[str, ...]:
+        """The `ZERO_START_MODULES` whose switch the config.json beside `model_file` has off (or predates)."""
+        path = Path(model_file).parent / CONFIG_FILE
+        saved = json.loads(path.read_text()) if path.is_file() else {}
+        return tuple(fragment for field, fragment in cls.ZERO_START_MODULES.items() if not saved.get(field))

@@ -292,6 +292,7 @@ class TaxDPDPolicy(CheckedLoading, EmaWeights, PreTrainedPolicy):
 
     config_class = TaxDPDConfig
     name = "taxdpd"
+    ZERO_START_MODULES = {"position_octaves": ".local_stage.denoiser.positions."}  # model/positions.py
 
     def __init__(self, config: TaxDPDConfig, dataset_stats=None, dataset_meta=None, **kwargs) -> None:
         super().__init__(config)
