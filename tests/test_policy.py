@@ -485,6 +485,7 @@ def test_saved_processors_accept_lerobots_override_keys(tmp_path):
         {"use_rotation_noise": False},
         {"use_deformation_embedding": False},
         {"local_diffusion": "se3"},
+        {"frame_from_points": True},
         {
             "use_gmm": False,
             "disentangled": False,

@@ -145,6 +145,11 @@ class TaxDPDConfig(PreTrainedConfig):
     # network spends little on reading where in the scene the centroid goes.
     frame_loss_weight: float = 1.0
     frame_noise_std: float = 1.0  # training frames g = goal centroid + N(0, std^2) (model units)
+    # Where the frame's denoised value is read: False, as published, from the frame token alone; True, the frame
+    # token's output plus the mean of the point head's outputs, which the shape's centring discards otherwise, so
+    # that every object token votes where its own point goes from the scene around it (the book's frame token
+    # does not find its slot along the shelf's row: docs/taxdpd.md, "Where the local stage puts the book").
+    frame_from_points: bool = False
     # What the local stage sees of the scene: 0, the scene the network sees (num_scene_points of it, the paper's
     # layout); N > 0, the N points of the scene as given (denser than num_scene_points when the dataset records
     # more) nearest the placement frame, so the place the object goes is seen at the recorded density whatever
@@ -233,6 +238,10 @@ class TaxDPDConfig(PreTrainedConfig):
             raise ValueError(f"frame_loss_weight: must be positive, got {self.frame_loss_weight}")
         if self.frame_loss_weight != 1.0 and not self.disentangled:
             raise ValueError("frame_loss_weight: needs disentangled=true (the joint diffusion has no frame of its own)")
+        if self.frame_from_points and not (self.disentangled and self.local_diffusion == "point"):
+            raise ValueError(
+                "frame_from_points: needs disentangled=true and local_diffusion='point' (a frame and point outputs)"
+            )
         if self.local_scene_points < 0:
             raise ValueError(f"local_scene_points: 0 (the whole scene) or positive, got {self.local_scene_points}")
         if self.local_scene_with_whole and not self.local_scene_points:

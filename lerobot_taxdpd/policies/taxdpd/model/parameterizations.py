@@ -53,8 +53,9 @@ class DisentangledPoints:
     frame_dim = 3
     has_point_output = True
 
-    def __init__(self, frame_weight: float = 1.0) -> None:
+    def __init__(self, frame_weight: float = 1.0, frame_from_points: bool = False) -> None:
         self.frame_weight = frame_weight
+        self.frame_from_points = frame_from_points  # TaxDPDConfig.frame_from_points
 
     def encode(self, goal: Tensor, object_centred: Tensor) -> State:
         frame = goal.mean(dim=1, keepdim=True)
@@ -83,8 +84,9 @@ class DisentangledPoints:
 
     def split(self, point_out: Tensor | None, frame_out: Tensor | None) -> State:
         # Centred in fp32 without a cast of its own: the mean accumulates in fp32 and the difference promotes.
-        shape = point_out - point_out.mean(1, keepdim=True, dtype=torch.float32)
-        return {"frame": frame_out.unsqueeze(1), "shape": shape}
+        mean = point_out.mean(1, keepdim=True, dtype=torch.float32)
+        frame = frame_out.unsqueeze(1) + mean if self.frame_from_points else frame_out.unsqueeze(1)
+        return {"frame": frame, "shape": point_out - mean}
 
     def centred_shape(self, state: State) -> Tensor:
         return state["shape"]
@@ -180,4 +182,6 @@ class SE3Pose:
 def make_parameterization(config) -> DisentangledPoints | JointPoints | SE3Pose:
     if config.local_diffusion == "se3":
         return SE3Pose(config.frame_loss_weight)
-    return DisentangledPoints(config.frame_loss_weight) if config.disentangled else JointPoints()
+    if not config.disentangled:
+        return JointPoints()
+    return DisentangledPoints(config.frame_loss_weight, config.frame_from_points)
