@@ -32,9 +32,13 @@ class _Demonstrated:
         return goal.expand(1, num_samples, *goal.shape)
 
 
+@pytest.fixture(scope="module")
+def trial():
+    return make_trial(get_task("book_shelf"), 1000)
+
+
 @pytest.mark.parametrize("follows_frame", [True, False], ids=["stays-at-its-frame", "finds-the-goal"])
-def test_the_slope_says_how_much_of_the_frames_offset_passes_through(follows_frame):
-    trial = make_trial(get_task("book_shelf"), 1000)
+def test_the_slope_says_how_much_of_the_frames_offset_passes_through(trial, follows_frame):
     offsets_mm = np.linspace(-13.0, 13.0, 5)
     landings = frame_response.landing_offsets(_Demonstrated(trial, follows_frame), trial, offsets_mm / 1000, 2, 0)
     summary = frame_response.summarise(landings[None], offsets_mm)
