@@ -34,6 +34,11 @@ def device_code_paths() -> Iterator[None]:
         _DEVICE_CODE_PATHS.reset(token)
 
 
+def takes_cpu_shortcuts(x: Tensor) -> bool:
+    """Whether code on `x` may take a CPU-only shortcut: on the CPU, outside `device_code_paths`."""
+    return x.device.type == "cpu" and not _DEVICE_CODE_PATHS.get()
+
+
 def _as_tensor(x: ArrayLike) -> tuple[Tensor, bool]:
     """Return `x` as a float tensor and whether it came in as numpy (to convert the answer back)."""
     if isinstance(x, np.ndarray):
@@ -61,7 +66,7 @@ def farthest_point_sample(points: Tensor, num_samples: int, start_index: Tensor 
     flat = points.detach().reshape(-1, n, points.shape[-1])
     b = flat.shape[0]
     starts = start_index.reshape(b) if start_index is not None else torch.zeros(b, dtype=torch.long)
-    if flat.device.type == "cpu" and not _DEVICE_CODE_PATHS.get():
+    if takes_cpu_shortcuts(flat):
         import fpsample
 
         clouds, firsts = flat.float().numpy(), starts.tolist()
@@ -111,7 +116,7 @@ def farthest_point_sample_parts(
     farther than any other point), so the number of ops follows the largest count, not the sum of them."""
     if starts is None:
         starts = [torch.zeros(part.shape[0], dtype=torch.long, device=part.device) for part in parts]
-    if parts[0].device.type == "cpu" and not _DEVICE_CODE_PATHS.get():
+    if takes_cpu_shortcuts(parts[0]):
         return [farthest_point_sample(p, count, start) for p, count, start in zip(parts, counts, starts, strict=True)]
     for part, count in zip(parts, counts, strict=True):
         if count > part.shape[1]:
