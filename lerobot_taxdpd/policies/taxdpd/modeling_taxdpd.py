@@ -94,16 +94,14 @@ class TaxDPDModel(nn.Module):
 
     def _gmm(
         self,
-        object_points: Tensor,
+        object_centred: Tensor,
+        object_centroid: Tensor,
         scene_points: Tensor,
         layouts: list[SamplingLayout] | None,
         object_grouping: Grouping | None = None,
     ) -> tuple[Tensor, Tensor]:
-        """Mixing logits (B, M) and component means (B, M, 3)."""
-        object_centroid = object_points.mean(1)
-        return self.global_stage(
-            object_points - object_centroid.unsqueeze(1), scene_points, object_centroid, layouts, object_grouping
-        )
+        """Mixing logits (B, M) and component means (B, M, 3), from the object centred on its centroid (B, 3)."""
+        return self.global_stage(object_centred, scene_points, object_centroid, layouts, object_grouping)
 
     def _object_grouping(self, object_centred: Tensor, layouts: list[SamplingLayout] | None) -> Grouping | None:
         """The centred object's grouping, which both stages' object encoders and the deformation encoder share
@@ -128,7 +126,8 @@ class TaxDPDModel(nn.Module):
         stage takes its local scene from (default: `scene_points`)."""
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
-        object_centred = object_points - object_points.mean(1, keepdim=True)
+        object_centroid = object_points.mean(1)
+        object_centred = object_points - object_centroid.unsqueeze(1)
         if self.global_stage is not None:
             frame = target + randn_like(target) * self.config.frame_noise_std
         else:
@@ -145,7 +144,7 @@ class TaxDPDModel(nn.Module):
             n = max(1, round(target.shape[0] * self.config.gmm_batch_fraction))
             head = [layout.head(n) for layout in layouts[:2]] if layouts is not None else None
             grouping = object_grouping.head(n) if object_grouping is not None else None
-            logits, means = self._gmm(object_points[:n], scene_points[:n], head, grouping)
+            logits, means = self._gmm(object_centred[:n], object_centroid[:n], scene_points[:n], head, grouping)
             losses["loss_gmm"] = self.global_stage.loss(logits, means, target[:n])
         frame = frame.unsqueeze(1)
         local_scene, scene_layout = self._local_stage_scene(
@@ -189,7 +188,8 @@ class TaxDPDModel(nn.Module):
             raise RuntimeError(
                 "this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution"
             )
-        logits, means = self._gmm(object_points, scene_points, None)
+        object_centroid = object_points.mean(1)
+        logits, means = self._gmm(object_points - object_centroid.unsqueeze(1), object_centroid, scene_points, None)
         return torch.softmax(logits, -1), means
 
     def sample(
@@ -212,13 +212,14 @@ class TaxDPDModel(nn.Module):
         are drawn (`TaxDPDConfig.gmm_frames`), `frame_temperature` how far from them the local stage starts
         (`TaxDPDConfig.frame_temperature`); `fps_ordered` and `dense_scene` as in `forward`."""
         b, n, _ = object_points.shape
-        object_centred = object_points - object_points.mean(1, keepdim=True)
+        object_centroid = object_points.mean(1)
+        object_centred = object_points - object_centroid.unsqueeze(1)
         layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
         object_grouping = self._object_grouping(object_centred, layouts)
         if frames is not None:
             frames = frames.to(scene_points).unsqueeze(1).expand(b, num_samples, 3)
         elif self.global_stage is not None:
-            logits, means = self._gmm(object_points, scene_points, layouts, object_grouping)
+            logits, means = self._gmm(object_centred, object_centroid, scene_points, layouts, object_grouping)
             probabilities = torch.softmax(logits.float(), -1)
             if generator is not None:
                 probabilities = probabilities.to(generator.device)
