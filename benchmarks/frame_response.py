@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from lerobot_taxdpd.goal_predictors import load_goal_predictor
-from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.sim.predictors import observed_as_trained
 from lerobot_taxdpd.sim.tasks import get_task, task_names
@@ -33,7 +32,7 @@ AXES = ("thinnest", "middle", "longest")
 def landing_offsets(predictor, trial, offsets_m: np.ndarray, num_samples: int, seed: int) -> np.ndarray:
     """(3 axes, len(offsets)) where the samples' mean centroid lands along each principal axis of the goal cloud,
     relative to the demonstrated centroid, with the frames put at the centroid moved by each offset."""
-    goal = transform_points(trial.goal_transform, trial.object_points.astype(np.float64))
+    goal = trial.goal_points().astype(np.float64)
     centroid = goal.mean(0)
     axes = np.linalg.svd(goal - centroid, full_matrices=False)[2][::-1]  # thinnest extent first
     object_points = torch.from_numpy(trial.object_points)[None]

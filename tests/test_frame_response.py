@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_taxdpd.maths.geometry import transform_points
 from lerobot_taxdpd.sim.tasks import get_task
 from lerobot_taxdpd.sim.trials import make_trial
 
@@ -22,7 +21,7 @@ class _Demonstrated:
     """The demonstrated goal, moved to the frame it is given (`follows_frame`) or left where it is."""
 
     def __init__(self, trial, follows_frame: bool) -> None:
-        self.goal = torch.from_numpy(transform_points(trial.goal_transform, trial.object_points.astype(np.float64)))
+        self.goal = torch.from_numpy(trial.goal_points().astype(np.float64))
         self.follows_frame = follows_frame
 
     def sample_goals(self, object_points, scene_points, num_samples, *, generator=None, placement_frames=None):
