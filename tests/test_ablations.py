@@ -108,7 +108,7 @@ def test_ablation_overrides_must_name_a_field_and_a_value():
 
 def test_a_task_trains_with_its_own_flags_and_the_users_win():
     """Insertion drops the plug's yaw augmentation (one grasp yaw in every scene), the mugs theirs (symmetric goals,
-    demos at every start yaw), the book trains with the flags it ships with; a user's flag overrides a task's."""
+    demos at every start yaw), the book turns its scene as far as shelves turn; a user's flag overrides a task's."""
     flags = training_flags(get_task("insert_waterproof"), 500, ["--policy.start_yaw_range=5"])
     assert flags[0] == "--steps=500"
     config = draccus.parse(
@@ -117,8 +117,7 @@ def test_a_task_trains_with_its_own_flags_and_the_users_win():
     assert (config.start_yaw_range, config.start_tilt_range) == (5.0, 15.0)
     assert training_flags(get_task("mug_easyrack"), None, []) == ["--policy.start_yaw_range=0"]
     assert training_flags(get_task("can_cabinet"), None, []) == []  # the recipe's full-yaw default stands
-    book = draccus.parse(
-        config_class=TaxDPDConfig,
-        args=[f.replace("--policy.", "--") for f in training_flags(get_task("book_shelf"), None, [])],
-    )  # the shelves keep a heading: the scene turn spans +-30 deg; the pose terms and the frame's cold start
-    assert (book.z_rotation_range, book.rotation_loss_weight, book.frame_temperature) == (30.0, 5.0, 0.0)
+    assert training_flags(get_task("book_shelf"), None, []) == [
+        "--policy.start_yaw_range=0",
+        "--policy.z_rotation_range=30",  # the shelves keep a heading: the scene turn spans +-30 deg
+    ]
