@@ -79,6 +79,12 @@ SAMPLER_ETA = {"ddim": 0.0, "ddpm": 1.0}
 SCALE_TOLERANCE = 10.0
 
 
+def centre_on_centroid(points: Tensor) -> tuple[Tensor, Tensor]:
+    """Points (B, N, 3) moved to their centroid, and the centroid (B, 3): the object as both stages take it."""
+    centroid = points.mean(1)
+    return points - centroid.unsqueeze(1), centroid
+
+
 class TaxDPDModel(nn.Module):
     """Dense GMM (global) + disentangled point diffusion (local).
 
@@ -126,8 +132,7 @@ class TaxDPDModel(nn.Module):
         stage takes its local scene from (default: `scene_points`)."""
         target = goal_points.mean(1)
         losses: dict[str, Tensor] = {}
-        object_centroid = object_points.mean(1)
-        object_centred = object_points - object_centroid.unsqueeze(1)
+        object_centred, object_centroid = centre_on_centroid(object_points)
         if self.global_stage is not None:
             frame = target + randn_like(target) * self.config.frame_noise_std
         else:
@@ -188,8 +193,7 @@ class TaxDPDModel(nn.Module):
             raise RuntimeError(
                 "this model was trained without the Dense GMM (use_gmm=false): it has no placement distribution"
             )
-        object_centroid = object_points.mean(1)
-        logits, means = self._gmm(object_points - object_centroid.unsqueeze(1), object_centroid, scene_points, None)
+        logits, means = self._gmm(*centre_on_centroid(object_points), scene_points, None)
         return torch.softmax(logits, -1), means
 
     def sample(
@@ -212,8 +216,7 @@ class TaxDPDModel(nn.Module):
         are drawn (`TaxDPDConfig.gmm_frames`), `frame_temperature` how far from them the local stage starts
         (`TaxDPDConfig.frame_temperature`); `fps_ordered` and `dense_scene` as in `forward`."""
         b, n, _ = object_points.shape
-        object_centroid = object_points.mean(1)
-        object_centred = object_points - object_centroid.unsqueeze(1)
+        object_centred, object_centroid = centre_on_centroid(object_points)
         layouts = cloud_layouts(self.config, [object_centred, scene_points], fps_ordered)
         object_grouping = self._object_grouping(object_centred, layouts)
         if frames is not None:
