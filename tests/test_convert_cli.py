@@ -156,17 +156,21 @@ def test_interrupt_leaves_the_previous_dataset_untouched(tmp_path):
     before = {p.relative_to(root): p.stat().st_size for p in root.rglob("*")}
     big = _rpdiff_dir(tmp_path / "big", 60)
     command = [str(BIN / "taxdpd-convert"), "rpdiff", "--raw-dir", str(big), "--repo-id", "me/x", "--root", str(root)]
+    # 40 samplings a demo keep the new dataset half-written for tens of seconds (2 a demo gave a window of about
+    # 2 s, which a loaded CI machine once let pass unseen); the run is interrupted at once, so it costs nothing.
+    slow = [*command, "--overwrite", "--frames-per-episode", "40"]
     # A shell starts background jobs with SIGINT ignored, and a child would inherit that: give it Ctrl-C back.
     process = subprocess.Popen(
-        [*command, "--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        slow, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
     while not leftovers(root) and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
+    seen_half_written = leftovers(root)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
 
-    assert process.returncode == 130 and "interrupted" in stderr
+    assert process.returncode == 130 and "interrupted" in stderr, (seen_half_written, process.returncode, stderr)
     assert {p.relative_to(root): p.stat().st_size for p in root.rglob("*")} == before
     assert leftovers(root) == [] and LeRobotDataset("me/x", root=root).meta.total_episodes == 2
