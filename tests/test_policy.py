@@ -347,7 +347,7 @@ def test_loss_reports_each_part_and_reaches_every_parameter():
     assert all(p.grad is not None for p in policy.parameters())
     policy.update()  # the end of the step: the parts become the floats a logger takes
     assert all(type(value) is float and math.isfinite(value) for value in parts.values())
-    assert parts["loss_local"] == pytest.approx(float(loss) - parts["loss_gmm"], rel=1e-5)
+    assert parts["loss_local"] == pytest.approx(loss.item() - parts["loss_gmm"], rel=1e-5)
 
 
 @pytest.mark.parametrize("key", [OBJECT_KEY, SCENE_KEY, ACTION_KEY])
