@@ -156,8 +156,8 @@ def test_interrupt_leaves_the_previous_dataset_untouched(tmp_path):
     before = {p.relative_to(root): p.stat().st_size for p in root.rglob("*")}
     big = _rpdiff_dir(tmp_path / "big", 60)
     command = [str(BIN / "taxdpd-convert"), "rpdiff", "--raw-dir", str(big), "--repo-id", "me/x", "--root", str(root)]
-    # 40 samplings a demo keep the new dataset half-written for tens of seconds (2 a demo gave a window of about
-    # 2 s, which a loaded CI machine once let pass unseen); the run is interrupted at once, so it costs nothing.
+    # 40 samplings a demo keep the new dataset half-written for about 13 s (2 a demo gave a window of about 2 s,
+    # which a loaded CI machine once let pass unseen); the run is interrupted at once, so it costs nothing.
     slow = [*command, "--overwrite", "--frames-per-episode", "40"]
     # A shell starts background jobs with SIGINT ignored, and a child would inherit that: give it Ctrl-C back.
     process = subprocess.Popen(
