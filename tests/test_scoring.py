@@ -17,6 +17,7 @@ from lerobot_taxdpd.scoring.collect import COLLECTION_FILE, SHARD_ARRAYS, collec
 from lerobot_taxdpd.scoring.shipping import commands, evaluate_choice, ship_scorer
 from lerobot_taxdpd.scoring.training import train_scorer
 from lerobot_taxdpd.sim.cli import main as sim_main
+from lerobot_taxdpd.sim.cloth.evaluation import TrialRequest, run_trial
 
 
 def test_the_scorer_rule_executes_the_highest_scored_sample():
@@ -227,7 +228,14 @@ def test_cloth_samples_are_labelled_by_the_executor_hanging_each_one(tmp_path, c
     details, data = load_collection(folder)
     assert details["executor"] == "cloth_hang" and details["executor_weights"] != "unknown"
     assert data["samples"].shape[:2] == (1, 2) and data["success"].shape == (1, 2)
-    assert np.isnan(data["rmse"]).all(), "no valid goals were computed, so no RMSE is claimed"
+    # Each label's RMSE is the one `sim eval` reports for the same sample of the same scene.
+    evaluated = run_trial(TrialRequest(
+        split="train", seed=5000, policy_path=None, goal_policy_path="cloth_hang", ground_truth_goals=False,
+        num_goal_samples=2, goal_selection="first", compared_selections=(), goal_threshold=0.5, scorer_path=None,
+        figure_dir=None, device="cpu", torch_threads=1,
+    ))  # fmt: skip
+    assert np.isfinite(data["rmse"]).all()
+    np.testing.assert_allclose(data["rmse"][0], evaluated["sample_goal_rmse"], rtol=1e-5)
     # Its scorer measured on a held-out scene against the consensus sample (cloth's default) and the first, in
     # one pass, and shipped with the three rules in its card.
     config = GoalScorerConfig(num_goal_points=64, hidden_dims=(16,), feature_dim=16)

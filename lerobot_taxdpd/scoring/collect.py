@@ -35,7 +35,8 @@ from lerobot_taxdpd.maths.metrics import score_against_valid_goals
 
 COLLECTION_FILE = "collection.json"
 #: Arrays of a shard, per scene: seed (n,), scene (n, S, 3), object (n, N, 3), samples (n, K, N, 3), success
-#: (n, K) from executing each sample, rmse (n, K) metres to the nearest valid goal (NaN where not computed).
+#: (n, K) from executing each sample, rmse (n, K) to the nearest valid goal (metres; cloth units on cloth_hang; NaN
+#: where the scene has none).
 SHARD_ARRAYS = ("seed", "scene", "object", "samples", "success", "rmse")
 
 
@@ -71,8 +72,9 @@ def collect(
     """Collect (or finish collecting) labelled samples of `task_name`'s training scenes `seeds` into `output`.
 
     Rigid tasks execute each sample as `sim eval` does; `cloth_hang` hangs the cloth with the gc_dp3 `executor`
-    (default: the one shipped with the goal predictor's name) conditioned on each sample, and stores no RMSE
-    (NaN: the valid goals of a cloth scene cost an expert rollout per hole and hanger). With `workers` > 1,
+    (default: the one shipped with the goal predictor's name) conditioned on each sample, and finds the scene's
+    valid goals for the RMSE with an expert rollout per hole and hanger (about a fifth of a scene's time;
+    NaN where none hangs). With `workers` > 1,
     shards are labelled in that many processes (one torch thread each), each shard by one of them. Rigid tasks
     can add `shifted_copies` candidates a scene: samples moved by up to `shift_extent_mm` in x and y (the K
     samples come first, so rules that read the first sample still see the predictor's)."""
@@ -198,16 +200,18 @@ def _rigid_labeller(
 
 
 def _cloth_scene(goal_policy: str, executor: str, num_samples: int, seed: int) -> dict[str, np.ndarray]:
-    """One cloth scene: K goals sampled from the start cloth and the hangers, each hung by the executor."""
+    """One cloth scene: K goals sampled from the start cloth and the hangers, each hung by the executor, and
+    each one's RMSE to the nearest goal the expert hangs from this start (NaN where it hangs none)."""
+    from lerobot_taxdpd.maths.metrics import pairwise_rmse
     from lerobot_taxdpd.sim.cloth.env import ClothHangEnv
     from lerobot_taxdpd.sim.cloth.evaluation import cached_executor, policy_controller, sample_goals
-    from lerobot_taxdpd.sim.cloth.rollout import rollout
+    from lerobot_taxdpd.sim.cloth.rollout import rollout, valid_goal_clouds
     from lerobot_taxdpd.sim.cloth.scene import sample_scene
 
     env = ClothHangEnv("train")
     try:
         scene = sample_scene("train", seed, env.ranges)
-        env.reset(options={"scene": scene})
+        goals = list(valid_goal_clouds(env, scene).values())  # as `sim eval` finds them, before it samples
         cloth, hangers = env.cloth_points(), env.hanger_points
         samples = sample_goals(goal_policy, cloth, hangers, num_samples, seed)
         policy = cached_executor(executor, "cpu")
@@ -217,7 +221,8 @@ def _cloth_scene(goal_policy: str, executor: str, num_samples: int, seed: int) -
             success.append(rollout(env, scene, policy_controller(*policy, sample)).success)
     finally:
         env.close()
-    return _row(seed, hangers, cloth, samples, success, np.full(num_samples, np.nan))
+    rmse = pairwise_rmse(samples, np.stack(goals)).min(1) if goals else np.full(num_samples, np.nan)
+    return _row(seed, hangers, cloth, samples, success, rmse)
 
 
 def _shard_name(seeds: list[int]) -> str:

@@ -37,7 +37,7 @@ from lerobot_taxdpd.recipes import portable_train_command
 from lerobot_taxdpd.reports.benchmarking import machine_info, write_json
 from lerobot_taxdpd.reports.plots import plot_goal_samples
 from lerobot_taxdpd.sim.cloth.env import TASK_DESCRIPTION, ClothHangEnv
-from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goals
+from lerobot_taxdpd.sim.cloth.rollout import Controller, Episode, rollout, valid_goal_clouds
 from lerobot_taxdpd.sim.cloth.scene import SPLITS, sample_scene
 
 #: Why `--ship` takes no scorer's choice: the shipped pipeline must run with what it ships.
@@ -118,11 +118,9 @@ def run_trial(request: TrialRequest) -> dict:
         rng = np.random.default_rng([SPLITS.index(request.split), request.seed, 4])
         pairs = [(h, j) for h in range(len(scene.holes)) for j in range(len(scene.hangers))]
         pairs = [pairs[i] for i in rng.permutation(len(pairs))]
-        goal_vertices = valid_goals(env, scene, pairs, stop_after=None if request.goal_policy_path else 1)
-        env.reset(options={"scene": scene})
+        goal_clouds = valid_goal_clouds(env, scene, pairs, stop_after=None if request.goal_policy_path else 1)
         start_cloud, hanger_cloud = env.cloth_points(), env.hanger_points
-        keys = list(goal_vertices)
-        goals = [env.samples.points(goal_vertices[key], env.mesh.faces) for key in keys]
+        keys, goals = list(goal_clouds), list(goal_clouds.values())
         result: dict = {"seed": request.seed, "holes": len(scene.holes), "valid_goals": [list(k) for k in keys]}
         if not goals:
             result["seconds"] = time.perf_counter() - started

@@ -115,3 +115,16 @@ def valid_goals(
             if stop_after is not None and len(goals) >= stop_after:
                 break
     return goals
+
+
+def valid_goal_clouds(
+    env: ClothHangEnv,
+    scene: ClothScene,
+    pairs: Iterable[tuple[int, int]] | None = None,
+    stop_after: int | None = None,
+) -> dict[tuple[int, int], np.ndarray]:
+    """`valid_goals` as the clouds a goal sample is scored against (the observed surface points, at the settled
+    vertices); leaves `env` reset to the scene's start, where the goal predictor observes it."""
+    vertices = valid_goals(env, scene, pairs, stop_after)
+    env.reset(options={"scene": scene})
+    return {key: env.samples.points(settled, env.mesh.faces) for key, settled in vertices.items()}
